@@ -1,0 +1,9 @@
+//! ianav-sim: the high-fidelity stochastic flight simulator of the paper's section
+//! "Testing: High Fidelity Simulation and Scenarios" — environment, aircraft, guidance and
+//! control, sensors, scenarios — driving the `ianav` navigation core.
+
+pub mod aircraft;
+pub mod control;
+pub mod env;
+pub mod rng;
+pub mod sensors;

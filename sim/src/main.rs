@@ -1,0 +1,5 @@
+//! `ianav-sim`: fly scenarios with the navigation in the loop.
+
+fn main() {
+    println!("ianav-sim {}", env!("CARGO_PKG_VERSION"));
+}

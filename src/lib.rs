@@ -1,0 +1,13 @@
+//! ianav: GNSS-denied navigation for fixed-wing UAVs.
+//!
+//! The navigation core is synchronous and deterministic: it is fed timestamped
+//! [`sensors::SensorEvent`]s and returns estimates. The simulator (`ianav-sim`), the Monte
+//! Carlo and the MAVLink daemon drive the same core.
+//!
+//! Conventions (frames, rotations, units, time) follow `docs/ARCHITECTURE.md` and the paper:
+//! ECEF `E`, NED `N`, body `B`, camera `C`; Hamilton quaternions with `v_a = q_ab * v_b`;
+//! right perturbations `X ⊕ τ = X ∘ Exp(τ)`; SI units and radians; time in `t_us: u64`.
+
+pub mod env;
+pub mod math;
+pub mod sensors;

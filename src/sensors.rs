@@ -1,0 +1,105 @@
+//! Sensor sample types and the [`SensorEvent`] stream fed to the navigation core
+//! (paper, section "Testing: High Fidelity Simulation", sensed trajectory `x~`).
+//!
+//! All values are SI, in the frame named by the field. Inertial samples are expressed in the
+//! IMU platform axes as the navigation believes them aligned with the body (`B`) axes.
+
+use nalgebra::Vector3;
+use serde::{Deserialize, Serialize};
+
+use crate::math::wgs84::Geodetic;
+
+/// Gyroscope and accelerometer sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct ImuSample {
+    /// Sample time, microseconds on the run's monotonic clock.
+    pub t_us: u64,
+    /// Measured inertial angular velocity `w_ib_b`, rad/s.
+    pub gyro_rps: Vector3<f64>,
+    /// Measured specific force `f_ib_b`, m/s².
+    pub accel_mps2: Vector3<f64>,
+}
+
+/// Air data: Pitot, vanes, barometer and thermometer.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct AirSample {
+    /// Sample time, microseconds.
+    pub t_us: u64,
+    /// True airspeed, m/s.
+    pub tas_mps: f64,
+    /// Angle of attack from the vane, rad (`None` when no vane is fitted).
+    pub aoa_rad: Option<f64>,
+    /// Angle of sideslip from the vane, rad (`None` when no vane is fitted).
+    pub aos_rad: Option<f64>,
+    /// Static (outside) pressure, Pa.
+    pub p_pa: f64,
+    /// Outside air temperature, K.
+    pub temp_k: f64,
+}
+
+/// Magnetometer sample.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct MagSample {
+    /// Sample time, microseconds.
+    pub t_us: u64,
+    /// Measured magnetic field in body axes, nT.
+    pub mag_b_nt: Vector3<f64>,
+}
+
+/// GNSS position and velocity fix.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct GnssFix {
+    /// Fix time, microseconds.
+    pub t_us: u64,
+    /// Geodetic position (WGS84).
+    pub pos: Geodetic,
+    /// Ground velocity in NED, m/s.
+    pub v_ned_mps: Vector3<f64>,
+    /// One-sigma horizontal position accuracy the receiver reports, m.
+    pub sigma_hor_m: f64,
+    /// One-sigma vertical position accuracy, m.
+    pub sigma_ver_m: f64,
+    /// One-sigma velocity accuracy per axis, m/s.
+    pub sigma_vel_mps: f64,
+}
+
+/// A grey-level camera frame (8 bits per pixel, row-major).
+#[derive(Debug, Clone, PartialEq)]
+pub struct Frame {
+    /// Exposure time, microseconds.
+    pub t_us: u64,
+    /// Width in pixels (image columns).
+    pub width: u32,
+    /// Height in pixels (image rows).
+    pub height: u32,
+    /// `width * height` grey levels, row after row.
+    pub pixels: std::sync::Arc<[u8]>,
+}
+
+/// One timestamped input of the navigation core.
+#[derive(Debug, Clone, PartialEq)]
+pub enum SensorEvent {
+    /// Inertial measurement unit.
+    Imu(ImuSample),
+    /// Air data and atmosphere.
+    Air(AirSample),
+    /// Magnetometer.
+    Mag(MagSample),
+    /// GNSS receiver.
+    Gnss(GnssFix),
+    /// Down-looking camera.
+    Frame(Frame),
+}
+
+impl SensorEvent {
+    /// Time of the event, microseconds.
+    pub fn t_us(&self) -> u64 {
+        match self {
+            SensorEvent::Imu(s) => s.t_us,
+            SensorEvent::Air(s) => s.t_us,
+            SensorEvent::Mag(s) => s.t_us,
+            SensorEvent::Gnss(s) => s.t_us,
+            SensorEvent::Frame(s) => s.t_us,
+        }
+    }
+}
