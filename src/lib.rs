@@ -9,5 +9,6 @@
 //! right perturbations `X ⊕ τ = X ∘ Exp(τ)`; SI units and radians; time in `t_us: u64`.
 
 pub mod env;
+pub mod io;
 pub mod math;
 pub mod sensors;

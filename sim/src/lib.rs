@@ -5,5 +5,7 @@
 pub mod aircraft;
 pub mod control;
 pub mod env;
+pub mod plots;
 pub mod rng;
+pub mod scenario;
 pub mod sensors;

@@ -1,0 +1,449 @@
+//! The paper's two GNSS-denied scenarios (section "Scenarios"; author_impl §6): scenario #1
+//! (3,800 s: a turn, an airspeed change and a climb or descent under weather and wind ramps)
+//! and scenario #2 (500 s: up to eight turns in constant weather and wind). Every stochastic
+//! parameter is drawn from its own seeded stream.
+
+use serde::{Deserialize, Serialize};
+
+use crate::control::{AileronTarget, ElevatorTarget, Operation, Trigger};
+use crate::env::{OffsetsConfig, WindConfig};
+use crate::rng::{self, Stream};
+
+/// Longest a redraw loop may spin before it takes the documented fallback. With the paper's
+/// distributions every loop accepts with probability > 0.3 per draw, so reaching this means a
+/// misconfigured scenario, not bad luck.
+const MAX_REDRAWS: usize = 10_000;
+
+/// Errors of scenario configuration.
+#[derive(Debug, thiserror::Error)]
+pub enum ScenarioError {
+    /// The TOML could not be parsed or has unknown/missing keys.
+    #[error("scenario configuration: {0}")]
+    Parse(#[from] toml::de::Error),
+    /// A value is out of its allowed range.
+    #[error("scenario configuration: `{field}` {reason}")]
+    Invalid {
+        /// Dotted path of the offending key.
+        field: &'static str,
+        /// What is wrong with it.
+        reason: String,
+    },
+}
+
+/// Which of the paper's missions a scenario flies.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MissionKind {
+    /// Scenario #1: turn, airspeed change, climb or descent (author_impl §6.2).
+    Benchmark,
+    /// Scenario #2: up to eight turns at constant airspeed and altitude (author_impl §6.3).
+    Alternate,
+}
+
+/// Start point of the flight.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StartConfig {
+    /// Geodetic latitude, degrees.
+    pub lat_deg: f64,
+    /// Longitude, degrees.
+    pub lon_deg: f64,
+}
+
+/// Distributions of the mission draws (author_impl §6.2; `N` is a standard normal draw).
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MissionDrawConfig {
+    /// Mean initial airspeed, m/s (V_ini = mean + σ·N, redrawn outside the band).
+    pub airspeed_mean_mps: f64,
+    /// σ of the initial airspeed and of the airspeed change, m/s.
+    pub airspeed_sigma_mps: f64,
+    /// Lowest allowed airspeed, m/s.
+    pub airspeed_min_mps: f64,
+    /// Highest allowed airspeed, m/s.
+    pub airspeed_max_mps: f64,
+    /// Smallest airspeed change, m/s.
+    pub airspeed_change_min_mps: f64,
+    /// Mean initial pressure altitude, m.
+    pub hp_mean_m: f64,
+    /// σ of the initial pressure altitude, m.
+    pub hp_sigma_m: f64,
+    /// σ of the pressure-altitude change, m.
+    pub hp_change_sigma_m: f64,
+    /// Smallest pressure-altitude change, m.
+    pub hp_change_min_m: f64,
+    /// Air path angle of climbs and descents, degrees.
+    pub climb_path_angle_deg: f64,
+    /// Bank angle of turns, degrees.
+    pub turn_bank_deg: f64,
+    /// A turn ends when the bearing is this far from the target, degrees.
+    pub turn_lead_deg: f64,
+    /// Smallest bearing change of a turn, degrees.
+    pub bearing_change_min_deg: f64,
+    /// Mean duration before the airspeed change and before the altitude change, s.
+    pub phase_mean_s: f64,
+    /// σ of those durations, s.
+    pub phase_sigma_s: f64,
+    /// Shortest of those durations, s.
+    pub phase_min_s: f64,
+    /// Longest sum of both durations, s.
+    pub phases_max_sum_s: f64,
+    /// Mean delay of the first turn after GNSS loss, s.
+    pub turn_delay_mean_s: f64,
+    /// σ of that delay, s.
+    pub turn_delay_sigma_s: f64,
+    /// Shortest delay of the first turn after GNSS loss, s.
+    pub turn_delay_min_s: f64,
+    /// Number of turns of the alternate mission (scenario #2).
+    pub alternate_turns: usize,
+    /// Shortest straight leg between turns of the alternate mission, s.
+    pub alternate_leg_min_s: i64,
+    /// Longest straight leg between turns of the alternate mission, s.
+    pub alternate_leg_max_s: i64,
+}
+
+impl Default for MissionDrawConfig {
+    fn default() -> Self {
+        Self {
+            airspeed_mean_mps: 29.0,
+            airspeed_sigma_mps: 1.5,
+            airspeed_min_mps: 24.0,
+            airspeed_max_mps: 34.0,
+            airspeed_change_min_mps: 0.5,
+            hp_mean_m: 2700.0,
+            hp_sigma_m: 200.0,
+            hp_change_sigma_m: 300.0,
+            hp_change_min_m: 100.0,
+            climb_path_angle_deg: 2.0,
+            turn_bank_deg: 10.0,
+            turn_lead_deg: 5.0,
+            bearing_change_min_deg: 10.0,
+            phase_mean_s: 500.0,
+            phase_sigma_s: 100.0,
+            phase_min_s: 150.0,
+            phases_max_sum_s: 2500.0,
+            turn_delay_mean_s: 30.0,
+            turn_delay_sigma_s: 50.0,
+            turn_delay_min_s: 15.0,
+            alternate_turns: 8,
+            alternate_leg_min_s: 10,
+            alternate_leg_max_s: 50,
+        }
+    }
+}
+
+/// One scenario, as read from `config/scenarios/*.toml`.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ScenarioConfig {
+    /// Human-readable name.
+    pub name: String,
+    /// Mission type.
+    pub mission: MissionKind,
+    /// Mission end time, s (mission clock: 0 is the start of the evaluated flight).
+    pub duration_s: f64,
+    /// Settling time flown before mission time 0 (the controller and filters settle), s.
+    pub warmup_s: f64,
+    /// Mission time of the last GNSS fix, s.
+    pub gnss_loss_s: f64,
+    /// Turbulence intensity factor (1 = calibrated Dryden, the paper uses 0.5).
+    pub turbulence_factor: f64,
+    /// Epoch of the magnetic model, decimal year.
+    pub magnetic_decimal_year: f64,
+    /// Start point.
+    pub start: StartConfig,
+    /// Mission draw distributions.
+    #[serde(default)]
+    pub draws: MissionDrawConfig,
+    /// Temperature and pressure offsets.
+    pub offsets: OffsetsConfig,
+    /// Low-frequency wind.
+    pub wind: WindConfig,
+}
+
+impl ScenarioConfig {
+    /// Parse and validate a scenario file.
+    pub fn from_toml_str(text: &str) -> Result<Self, ScenarioError> {
+        let cfg: Self = toml::from_str(text)?;
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    /// The built-in scenario `1` or `2` (the files of `config/scenarios/`).
+    pub fn builtin(number: u8) -> Result<Self, ScenarioError> {
+        match number {
+            1 => Self::from_toml_str(include_str!("../../config/scenarios/scenario1.toml")),
+            2 => Self::from_toml_str(include_str!("../../config/scenarios/scenario2.toml")),
+            _ => Err(ScenarioError::Invalid {
+                field: "scenario",
+                reason: format!("must be 1 or 2, not {number}"),
+            }),
+        }
+    }
+
+    /// Check ranges; the error names the offending key.
+    pub fn validate(&self) -> Result<(), ScenarioError> {
+        let bad = |field: &'static str, reason: &str| {
+            Err(ScenarioError::Invalid { field, reason: reason.to_owned() })
+        };
+        let positive = [
+            ("duration_s", self.duration_s),
+            ("draws.airspeed_min_mps", self.draws.airspeed_min_mps),
+            ("draws.hp_mean_m", self.draws.hp_mean_m),
+            ("draws.turn_bank_deg", self.draws.turn_bank_deg),
+        ];
+        for (field, value) in positive {
+            if !(value.is_finite() && value > 0.0) {
+                return bad(field, &format!("must be a positive number, got {value}"));
+            }
+        }
+        let non_negative = [
+            ("warmup_s", self.warmup_s),
+            ("gnss_loss_s", self.gnss_loss_s),
+            ("turbulence_factor", self.turbulence_factor),
+        ];
+        for (field, value) in non_negative {
+            if !(value.is_finite() && value >= 0.0) {
+                return bad(field, &format!("must be a non-negative number, got {value}"));
+            }
+        }
+        if !(-90.0..=90.0).contains(&self.start.lat_deg) {
+            return bad("start.lat_deg", "must lie in [-90, 90]");
+        }
+        if !(-180.0..=360.0).contains(&self.start.lon_deg) {
+            return bad("start.lon_deg", "must lie in [-180, 360]");
+        }
+        if self.draws.airspeed_max_mps <= self.draws.airspeed_min_mps {
+            return bad("draws.airspeed_max_mps", "must exceed draws.airspeed_min_mps");
+        }
+        if self.draws.alternate_leg_max_s < self.draws.alternate_leg_min_s {
+            return bad("draws.alternate_leg_max_s", "must not be below alternate_leg_min_s");
+        }
+        if !(2025.0..2030.0).contains(&self.magnetic_decimal_year) {
+            return bad("magnetic_decimal_year", "must lie within WMM2025 (2025.0 to 2030.0)");
+        }
+        Ok(())
+    }
+}
+
+/// The drawn mission of one run: the values the paper lists per run, and the operations.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Mission {
+    /// Initial bearing χ_ini, rad.
+    pub chi_ini_rad: f64,
+    /// Bearings after each turn, rad.
+    pub chi_turns_rad: Vec<f64>,
+    /// Initial airspeed, m/s.
+    pub tas_ini_mps: f64,
+    /// Final airspeed, m/s (scenario #1).
+    pub tas_end_mps: f64,
+    /// Initial pressure altitude, m.
+    pub hp_ini_m: f64,
+    /// Final pressure altitude, m (scenario #1).
+    pub hp_end_m: f64,
+    /// Mission time of the first turn, s.
+    pub t_turn_s: f64,
+    /// The guidance operations, in order.
+    pub operations: Vec<Operation>,
+}
+
+fn wrap_deg(mut angle_deg: f64) -> f64 {
+    angle_deg = (angle_deg + 180.0).rem_euclid(360.0) - 180.0;
+    if angle_deg <= -180.0 { angle_deg + 360.0 } else { angle_deg }
+}
+
+/// Draw `mean + sigma·N` until `accept` holds (or the cap is hit: then the mean).
+fn draw_until(rng: &mut Stream, mean: f64, sigma: f64, accept: impl Fn(f64) -> bool) -> f64 {
+    for _ in 0..MAX_REDRAWS {
+        let value = mean + sigma * rng::normal(rng);
+        if accept(value) {
+            return value;
+        }
+    }
+    mean
+}
+
+/// A bearing in whole degrees U_int{−179..180} differing from `from_deg` by at least `min_deg`.
+fn draw_bearing_change(rng: &mut Stream, from_deg: f64, min_deg: f64) -> f64 {
+    for _ in 0..MAX_REDRAWS {
+        let chi = rng::uniform_int(rng, -179, 180) as f64;
+        if wrap_deg(chi - from_deg).abs() >= min_deg {
+            return chi;
+        }
+    }
+    wrap_deg(from_deg + 90.0)
+}
+
+/// A turn towards `chi_to_deg` from `chi_from_deg`: bank sign by the shortest way round, and
+/// a trigger `lead` degrees before the target.
+fn turn(tas_mps: f64, hp_m: f64, chi_from_deg: f64, chi_to_deg: f64, d: &MissionDrawConfig) -> Operation {
+    let right = wrap_deg(chi_to_deg - chi_from_deg) > 0.0;
+    let sign = if right { 1.0 } else { -1.0 };
+    Operation {
+        tas_mps,
+        elevator: ElevatorTarget::PressureAltitude { hp_m },
+        aileron: AileronTarget::Bank { xi_rad: (sign * d.turn_bank_deg).to_radians() },
+        trigger: Trigger::Bearing {
+            chi_rad: wrap_deg(chi_to_deg - sign * d.turn_lead_deg).to_radians(),
+        },
+    }
+}
+
+fn hold(tas_mps: f64, hp_m: f64, chi_deg: f64, trigger: Trigger) -> Operation {
+    Operation {
+        tas_mps,
+        elevator: ElevatorTarget::PressureAltitude { hp_m },
+        aileron: AileronTarget::Bearing { chi_rad: chi_deg.to_radians() },
+        trigger,
+    }
+}
+
+impl Mission {
+    /// Draw the mission of one run (author_impl §6.2 draws 1–9, then §6.3 for scenario #2).
+    pub fn draw(cfg: &ScenarioConfig, rng: &mut Stream) -> Self {
+        let d = &cfg.draws;
+        let (v_min, v_max) = (d.airspeed_min_mps, d.airspeed_max_mps);
+        let chi_ini = rng::uniform_int(rng, -179, 180) as f64;
+        let chi_end = draw_bearing_change(rng, chi_ini, d.bearing_change_min_deg);
+        let dt_tas = draw_until(rng, d.phase_mean_s, d.phase_sigma_s, |t| t >= d.phase_min_s);
+        let tas_ini = draw_until(rng, d.airspeed_mean_mps, d.airspeed_sigma_mps, |v| {
+            (v_min..=v_max).contains(&v)
+        });
+        let dv = draw_until(rng, 0.0, d.airspeed_sigma_mps, |dv| {
+            dv.abs() >= d.airspeed_change_min_mps && (v_min..=v_max).contains(&(tas_ini + dv))
+        });
+        let tas_end = tas_ini + dv;
+        let dt_hp = draw_until(rng, d.phase_mean_s, d.phase_sigma_s, |t| {
+            t >= d.phase_min_s && t + dt_tas <= d.phases_max_sum_s
+        });
+        let hp_ini = d.hp_mean_m + d.hp_sigma_m * rng::normal(rng);
+        let dhp = draw_until(rng, 0.0, d.hp_change_sigma_m, |dh| dh.abs() >= d.hp_change_min_m);
+        let hp_end = hp_ini + dhp;
+        let t_turn = draw_until(
+            rng,
+            cfg.gnss_loss_s + d.turn_delay_mean_s,
+            d.turn_delay_sigma_s,
+            |t| t >= cfg.gnss_loss_s + d.turn_delay_min_s,
+        );
+
+        let mut operations = vec![hold(tas_ini, hp_ini, chi_ini, Trigger::Time { t_s: t_turn })];
+        let mut chi_turns = vec![chi_end];
+        match cfg.mission {
+            MissionKind::Benchmark => {
+                let gamma = d.climb_path_angle_deg.to_radians() * dhp.signum();
+                operations.push(turn(tas_ini, hp_ini, chi_ini, chi_end, d));
+                operations.push(hold(tas_ini, hp_ini, chi_end, Trigger::Elapsed { dt_s: dt_tas }));
+                operations.push(hold(tas_end, hp_ini, chi_end, Trigger::Elapsed { dt_s: dt_hp }));
+                operations.push(Operation {
+                    tas_mps: tas_end,
+                    elevator: ElevatorTarget::PathAngle { gamma_rad: gamma },
+                    aileron: AileronTarget::Bearing { chi_rad: chi_end.to_radians() },
+                    trigger: Trigger::PressureAltitude { hp_m: hp_end },
+                });
+                operations.push(hold(
+                    tas_end,
+                    hp_end,
+                    chi_end,
+                    Trigger::Time { t_s: cfg.duration_s },
+                ));
+            }
+            MissionKind::Alternate => {
+                let legs: Vec<f64> = (1..d.alternate_turns)
+                    .map(|_| {
+                        rng::uniform_int(rng, d.alternate_leg_min_s, d.alternate_leg_max_s) as f64
+                    })
+                    .collect();
+                for _ in 1..d.alternate_turns {
+                    let last = chi_turns.last().copied().unwrap_or(chi_end);
+                    chi_turns.push(draw_bearing_change(rng, last, d.bearing_change_min_deg));
+                }
+                let mut chi_from = chi_ini;
+                for (k, &chi_to) in chi_turns.iter().enumerate() {
+                    operations.push(turn(tas_ini, hp_ini, chi_from, chi_to, d));
+                    let trigger = match legs.get(k) {
+                        Some(&dt_s) => Trigger::Elapsed { dt_s },
+                        None => Trigger::Time { t_s: cfg.duration_s },
+                    };
+                    operations.push(hold(tas_ini, hp_ini, chi_to, trigger));
+                    chi_from = chi_to;
+                }
+            }
+        }
+        Self {
+            chi_ini_rad: chi_ini.to_radians(),
+            chi_turns_rad: chi_turns.iter().map(|c| c.to_radians()).collect(),
+            tas_ini_mps: tas_ini,
+            tas_end_mps: tas_end,
+            hp_ini_m: hp_ini,
+            hp_end_m: hp_end,
+            t_turn_s: t_turn,
+            operations,
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn builtin_scenarios_parse_and_validate() {
+        let s1 = ScenarioConfig::builtin(1).unwrap();
+        let s2 = ScenarioConfig::builtin(2).unwrap();
+        assert_eq!(s1.mission, MissionKind::Benchmark);
+        assert_eq!(s2.mission, MissionKind::Alternate);
+        assert_eq!(s1.duration_s, 3800.0);
+        assert_eq!(s2.duration_s, 500.0);
+        assert!(ScenarioConfig::builtin(3).is_err());
+    }
+
+    #[test]
+    fn unknown_and_bad_keys_are_named() {
+        let text = include_str!("../../config/scenarios/scenario2.toml");
+        let err = ScenarioConfig::from_toml_str(&format!("{text}\nbogus_key = 1\n")).unwrap_err();
+        assert!(err.to_string().contains("bogus_key"), "{err}");
+        let err = ScenarioConfig::from_toml_str(
+            &text.replace("turbulence_factor = 0.5", "turbulence_factor = -1.0"),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("turbulence_factor"), "{err}");
+    }
+
+    #[test]
+    fn benchmark_mission_respects_the_draw_rules() {
+        let cfg = ScenarioConfig::builtin(1).unwrap();
+        for seed in 0..200 {
+            let m = Mission::draw(&cfg, &mut rng::stream(seed, "guidance"));
+            assert_eq!(m.operations.len(), 6);
+            assert!((24.0..=34.0).contains(&m.tas_ini_mps));
+            assert!((24.0..=34.0).contains(&m.tas_end_mps));
+            assert!((m.tas_end_mps - m.tas_ini_mps).abs() >= 0.5);
+            assert!((m.hp_end_m - m.hp_ini_m).abs() >= 100.0);
+            assert!(m.t_turn_s >= 115.0);
+            let turn = wrap_deg((m.chi_turns_rad[0] - m.chi_ini_rad).to_degrees());
+            assert!(turn.abs() >= 10.0);
+            // The bank of the turn goes the short way round.
+            let AileronTarget::Bank { xi_rad } = m.operations[1].aileron else {
+                panic!("op 1 must be a turn")
+            };
+            assert_eq!(xi_rad.signum(), turn.signum());
+        }
+    }
+
+    #[test]
+    fn alternate_mission_has_eight_turns() {
+        let cfg = ScenarioConfig::builtin(2).unwrap();
+        let m = Mission::draw(&cfg, &mut rng::stream(3, "guidance"));
+        assert_eq!(m.chi_turns_rad.len(), 8);
+        assert_eq!(m.operations.len(), 17);
+        assert!(matches!(m.operations[16].trigger, Trigger::Time { t_s } if t_s == 500.0));
+    }
+
+    #[test]
+    fn wrap_deg_maps_into_half_open_interval() {
+        assert_eq!(wrap_deg(180.0), 180.0);
+        assert_eq!(wrap_deg(-180.0), 180.0);
+        assert_eq!(wrap_deg(190.0), -170.0);
+        assert_eq!(wrap_deg(-190.0), 170.0);
+    }
+}
