@@ -69,7 +69,10 @@ impl<W: Write> SensorLogWriter<W> {
         out.write_all(MAGIC)?;
         out.write_all(&VERSION.to_le_bytes())?;
         out.write_all(&0_u16.to_le_bytes())?;
-        Ok(Self { out, payload: Vec::with_capacity(128) })
+        Ok(Self {
+            out,
+            payload: Vec::with_capacity(128),
+        })
     }
 
     /// Append one event.
@@ -151,7 +154,11 @@ impl<R: Read> SensorLogReader<R> {
         if &header[..8] != MAGIC || version != VERSION {
             return Err(SensorLogError::BadHeader(version));
         }
-        Ok(Self { input, payload: Vec::new(), failed: false })
+        Ok(Self {
+            input,
+            payload: Vec::new(),
+            failed: false,
+        })
     }
 
     fn next_record(&mut self) -> Result<Option<SensorEvent>, SensorLogError> {
@@ -165,7 +172,7 @@ impl<R: Read> SensorLogReader<R> {
             self.input.read_exact(&mut head[1..])?;
             let kind = head[0];
             let len = u32::from_le_bytes([head[1], head[2], head[3], head[4]]);
-            if len > MAX_PAYLOAD || len < 8 {
+            if !(8..=MAX_PAYLOAD).contains(&len) {
                 return Err(SensorLogError::BadRecord { kind, len });
             }
             self.payload.resize(len as usize, 0);
@@ -217,7 +224,11 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
     let mut c = Cursor(payload);
     let t_us = u64::from_le_bytes(c.take::<8>()?);
     let event = match kind {
-        KIND_IMU => SensorEvent::Imu(ImuSample { t_us, gyro_rps: c.vec3()?, accel_mps2: c.vec3()? }),
+        KIND_IMU => SensorEvent::Imu(ImuSample {
+            t_us,
+            gyro_rps: c.vec3()?,
+            accel_mps2: c.vec3()?,
+        }),
         KIND_AIR => {
             let [flags] = c.take::<1>()?;
             let tas_mps = c.f64()?;
@@ -232,10 +243,17 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
                 temp_k: c.f64()?,
             })
         }
-        KIND_MAG => SensorEvent::Mag(MagSample { t_us, mag_b_nt: c.vec3()? }),
+        KIND_MAG => SensorEvent::Mag(MagSample {
+            t_us,
+            mag_b_nt: c.vec3()?,
+        }),
         KIND_GNSS => SensorEvent::Gnss(GnssFix {
             t_us,
-            pos: Geodetic { lat_rad: c.f64()?, lon_rad: c.f64()?, h_m: c.f64()? },
+            pos: Geodetic {
+                lat_rad: c.f64()?,
+                lon_rad: c.f64()?,
+                h_m: c.f64()?,
+            },
             v_ned_mps: c.vec3()?,
             sigma_hor_m: c.f64()?,
             sigma_ver_m: c.f64()?,
@@ -248,7 +266,12 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
             if c.0.len() != n {
                 return None;
             }
-            SensorEvent::Frame(Frame { t_us, width, height, pixels: Arc::from(c.0) })
+            SensorEvent::Frame(Frame {
+                t_us,
+                width,
+                height,
+                pixels: Arc::from(c.0),
+            })
         }
         _ => return None,
     };
@@ -274,10 +297,17 @@ mod tests {
                 p_pa: 73_000.0,
                 temp_k: 270.5,
             }),
-            SensorEvent::Mag(MagSample { t_us: 10_000, mag_b_nt: Vector3::new(17e3, -700.0, 5e4) }),
+            SensorEvent::Mag(MagSample {
+                t_us: 10_000,
+                mag_b_nt: Vector3::new(17e3, -700.0, 5e4),
+            }),
             SensorEvent::Gnss(GnssFix {
                 t_us: 1_000_000,
-                pos: Geodetic { lat_rad: 0.785, lon_rad: -1.57, h_m: 2700.0 },
+                pos: Geodetic {
+                    lat_rad: 0.785,
+                    lon_rad: -1.57,
+                    h_m: 2700.0,
+                },
                 v_ned_mps: Vector3::new(20.0, -20.0, 0.5),
                 sigma_hor_m: 2.12,
                 sigma_ver_m: 4.25,
@@ -300,8 +330,10 @@ mod tests {
             w.write(e).unwrap();
         }
         let bytes = w.finish().unwrap();
-        let back: Vec<SensorEvent> =
-            SensorLogReader::new(&bytes[..]).unwrap().collect::<Result<_, _>>().unwrap();
+        let back: Vec<SensorEvent> = SensorLogReader::new(&bytes[..])
+            .unwrap()
+            .collect::<Result<_, _>>()
+            .unwrap();
         assert_eq!(back, events);
     }
 
@@ -324,6 +356,9 @@ mod tests {
         short.extend_from_slice(&[KIND_IMU, 16, 0, 0, 0]);
         short.extend_from_slice(&[0; 16]);
         let items: Vec<_> = SensorLogReader::new(&short[..]).unwrap().collect();
-        assert!(matches!(items[0], Err(SensorLogError::BadRecord { kind: 1, len: 16 })));
+        assert!(matches!(
+            items[0],
+            Err(SensorLogError::BadRecord { kind: 1, len: 16 })
+        ));
     }
 }
