@@ -9,5 +9,5 @@ pub mod wind;
 
 pub use geophysics::{TrueGravity, TrueMagneticField};
 pub use offsets::{OffsetsConfig, WeatherOffsets};
-pub use turbulence::{Turbulence, TurbulenceConfig};
+pub use turbulence::{DrydenParams, Severity, Turbulence, TurbulenceConfig};
 pub use wind::{WindConfig, WindField};
