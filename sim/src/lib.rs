@@ -5,6 +5,8 @@
 pub mod aircraft;
 pub mod control;
 pub mod env;
+pub mod flight;
+pub mod output;
 pub mod plots;
 pub mod rng;
 pub mod scenario;

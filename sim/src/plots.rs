@@ -50,11 +50,20 @@ pub struct Chart<'a> {
 }
 
 /// Colours used for successive series.
-pub const PALETTE: [(u8, u8, u8); 6] =
-    [(31, 119, 180), (214, 39, 40), (44, 160, 44), (148, 103, 189), (255, 127, 14), (0, 0, 0)];
+pub const PALETTE: [(u8, u8, u8); 6] = [
+    (31, 119, 180),
+    (214, 39, 40),
+    (44, 160, 44),
+    (148, 103, 189),
+    (255, 127, 14),
+    (0, 0, 0),
+];
 
 fn bounds(series: &[Series]) -> Option<((f64, f64), (f64, f64))> {
-    let mut it = series.iter().flat_map(|s| s.points.iter()).filter(|(x, y)| x.is_finite() && y.is_finite());
+    let mut it = series
+        .iter()
+        .flat_map(|s| s.points.iter())
+        .filter(|(x, y)| x.is_finite() && y.is_finite());
     let &(x0, y0) = it.next()?;
     let (mut xr, mut yr) = ((x0, x0), (y0, y0));
     for &(x, y) in it {
@@ -67,13 +76,20 @@ fn bounds(series: &[Series]) -> Option<((f64, f64), (f64, f64))> {
 /// Widen a degenerate or tight range so flat lines remain visible.
 fn pad((lo, hi): (f64, f64)) -> (f64, f64) {
     let span = hi - lo;
-    let margin = if span > 1e-9 { 0.05 * span } else { lo.abs().max(1.0) * 0.01 };
+    let margin = if span > 1e-9 {
+        0.05 * span
+    } else {
+        lo.abs().max(1.0) * 0.01
+    };
     (lo - margin, hi + margin)
 }
 
 /// Draw `chart` to a `width × height` PNG at `path`.
 pub fn draw(path: &Path, chart: &Chart<'_>, width: u32, height: u32) -> Result<(), PlotError> {
-    let err = |message: String| PlotError { path: path.display().to_string(), message };
+    let err = |message: String| PlotError {
+        path: path.display().to_string(),
+        message,
+    };
     REGISTER.call_once(|| {
         // The bundled font is valid; if registration failed, text would simply be missing.
         let _ = plotters::style::register_font("sans-serif", FontStyle::Normal, FONT);
@@ -85,7 +101,10 @@ pub fn draw(path: &Path, chart: &Chart<'_>, width: u32, height: u32) -> Result<(
     yr = pad(yr);
     if chart.equal_axes {
         // Same metres per pixel on both axes (plot area is roughly width-90 by height-70).
-        let (pw, ph) = (f64::from(width.saturating_sub(90)), f64::from(height.saturating_sub(70)));
+        let (pw, ph) = (
+            f64::from(width.saturating_sub(90)),
+            f64::from(height.saturating_sub(70)),
+        );
         let scale = ((xr.1 - xr.0) / pw).max((yr.1 - yr.0) / ph);
         let (cx, cy) = ((xr.0 + xr.1) / 2.0, (yr.0 + yr.1) / 2.0);
         xr = (cx - scale * pw / 2.0, cx + scale * pw / 2.0);
@@ -109,7 +128,11 @@ pub fn draw(path: &Path, chart: &Chart<'_>, width: u32, height: u32) -> Result<(
     let labelled = chart.series.iter().filter(|s| !s.label.is_empty()).count();
     for s in &chart.series {
         let color = RGBColor(s.rgb.0, s.rgb.1, s.rgb.2);
-        let points = s.points.iter().copied().filter(|(x, y)| x.is_finite() && y.is_finite());
+        let points = s
+            .points
+            .iter()
+            .copied()
+            .filter(|(x, y)| x.is_finite() && y.is_finite());
         let style = color.stroke_width(if s.dashed { 1 } else { 2 });
         let drawn = if s.dashed {
             ctx.draw_series(DashedLineSeries::new(points, 6, 4, style))
@@ -149,7 +172,9 @@ mod tests {
             y_label: "y",
             series: vec![Series {
                 label: "sin".into(),
-                points: (0..100).map(|i| (f64::from(i), (f64::from(i) * 0.1).sin())).collect(),
+                points: (0..100)
+                    .map(|i| (f64::from(i), (f64::from(i) * 0.1).sin()))
+                    .collect(),
                 rgb: PALETTE[0],
                 dashed: false,
             }],
@@ -158,7 +183,10 @@ mod tests {
         draw(&path, &chart, 640, 400).unwrap();
         let bytes = std::fs::read(&path).unwrap();
         assert_eq!(&bytes[1..4], b"PNG");
-        let empty = Chart { series: vec![], ..chart };
+        let empty = Chart {
+            series: vec![],
+            ..chart
+        };
         assert!(draw(&dir.join("empty.png"), &empty, 640, 400).is_err());
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -184,7 +184,10 @@ impl ScenarioConfig {
     /// Check ranges; the error names the offending key.
     pub fn validate(&self) -> Result<(), ScenarioError> {
         let bad = |field: &'static str, reason: &str| {
-            Err(ScenarioError::Invalid { field, reason: reason.to_owned() })
+            Err(ScenarioError::Invalid {
+                field,
+                reason: reason.to_owned(),
+            })
         };
         let positive = [
             ("duration_s", self.duration_s),
@@ -204,7 +207,10 @@ impl ScenarioConfig {
         ];
         for (field, value) in non_negative {
             if !(value.is_finite() && value >= 0.0) {
-                return bad(field, &format!("must be a non-negative number, got {value}"));
+                return bad(
+                    field,
+                    &format!("must be a non-negative number, got {value}"),
+                );
             }
         }
         if !(-90.0..=90.0).contains(&self.start.lat_deg) {
@@ -214,13 +220,22 @@ impl ScenarioConfig {
             return bad("start.lon_deg", "must lie in [-180, 360]");
         }
         if self.draws.airspeed_max_mps <= self.draws.airspeed_min_mps {
-            return bad("draws.airspeed_max_mps", "must exceed draws.airspeed_min_mps");
+            return bad(
+                "draws.airspeed_max_mps",
+                "must exceed draws.airspeed_min_mps",
+            );
         }
         if self.draws.alternate_leg_max_s < self.draws.alternate_leg_min_s {
-            return bad("draws.alternate_leg_max_s", "must not be below alternate_leg_min_s");
+            return bad(
+                "draws.alternate_leg_max_s",
+                "must not be below alternate_leg_min_s",
+            );
         }
         if !(2025.0..2030.0).contains(&self.magnetic_decimal_year) {
-            return bad("magnetic_decimal_year", "must lie within WMM2025 (2025.0 to 2030.0)");
+            return bad(
+                "magnetic_decimal_year",
+                "must lie within WMM2025 (2025.0 to 2030.0)",
+            );
         }
         Ok(())
     }
@@ -249,7 +264,11 @@ pub struct Mission {
 
 fn wrap_deg(mut angle_deg: f64) -> f64 {
     angle_deg = (angle_deg + 180.0).rem_euclid(360.0) - 180.0;
-    if angle_deg <= -180.0 { angle_deg + 360.0 } else { angle_deg }
+    if angle_deg <= -180.0 {
+        angle_deg + 360.0
+    } else {
+        angle_deg
+    }
 }
 
 /// Draw `mean + sigma·N` until `accept` holds (or the cap is hit: then the mean).
@@ -276,13 +295,21 @@ fn draw_bearing_change(rng: &mut Stream, from_deg: f64, min_deg: f64) -> f64 {
 
 /// A turn towards `chi_to_deg` from `chi_from_deg`: bank sign by the shortest way round, and
 /// a trigger `lead` degrees before the target.
-fn turn(tas_mps: f64, hp_m: f64, chi_from_deg: f64, chi_to_deg: f64, d: &MissionDrawConfig) -> Operation {
+fn turn(
+    tas_mps: f64,
+    hp_m: f64,
+    chi_from_deg: f64,
+    chi_to_deg: f64,
+    d: &MissionDrawConfig,
+) -> Operation {
     let right = wrap_deg(chi_to_deg - chi_from_deg) > 0.0;
     let sign = if right { 1.0 } else { -1.0 };
     Operation {
         tas_mps,
         elevator: ElevatorTarget::PressureAltitude { hp_m },
-        aileron: AileronTarget::Bank { xi_rad: (sign * d.turn_bank_deg).to_radians() },
+        aileron: AileronTarget::Bank {
+            xi_rad: (sign * d.turn_bank_deg).to_radians(),
+        },
         trigger: Trigger::Bearing {
             chi_rad: wrap_deg(chi_to_deg - sign * d.turn_lead_deg).to_radians(),
         },
@@ -293,7 +320,9 @@ fn hold(tas_mps: f64, hp_m: f64, chi_deg: f64, trigger: Trigger) -> Operation {
     Operation {
         tas_mps,
         elevator: ElevatorTarget::PressureAltitude { hp_m },
-        aileron: AileronTarget::Bearing { chi_rad: chi_deg.to_radians() },
+        aileron: AileronTarget::Bearing {
+            chi_rad: chi_deg.to_radians(),
+        },
         trigger,
     }
 }
@@ -317,7 +346,9 @@ impl Mission {
             t >= d.phase_min_s && t + dt_tas <= d.phases_max_sum_s
         });
         let hp_ini = d.hp_mean_m + d.hp_sigma_m * rng::normal(rng);
-        let dhp = draw_until(rng, 0.0, d.hp_change_sigma_m, |dh| dh.abs() >= d.hp_change_min_m);
+        let dhp = draw_until(rng, 0.0, d.hp_change_sigma_m, |dh| {
+            dh.abs() >= d.hp_change_min_m
+        });
         let hp_end = hp_ini + dhp;
         let t_turn = draw_until(
             rng,
@@ -326,25 +357,44 @@ impl Mission {
             |t| t >= cfg.gnss_loss_s + d.turn_delay_min_s,
         );
 
-        let mut operations = vec![hold(tas_ini, hp_ini, chi_ini, Trigger::Time { t_s: t_turn })];
+        let mut operations = vec![hold(
+            tas_ini,
+            hp_ini,
+            chi_ini,
+            Trigger::Time { t_s: t_turn },
+        )];
         let mut chi_turns = vec![chi_end];
         match cfg.mission {
             MissionKind::Benchmark => {
                 let gamma = d.climb_path_angle_deg.to_radians() * dhp.signum();
                 operations.push(turn(tas_ini, hp_ini, chi_ini, chi_end, d));
-                operations.push(hold(tas_ini, hp_ini, chi_end, Trigger::Elapsed { dt_s: dt_tas }));
-                operations.push(hold(tas_end, hp_ini, chi_end, Trigger::Elapsed { dt_s: dt_hp }));
+                operations.push(hold(
+                    tas_ini,
+                    hp_ini,
+                    chi_end,
+                    Trigger::Elapsed { dt_s: dt_tas },
+                ));
+                operations.push(hold(
+                    tas_end,
+                    hp_ini,
+                    chi_end,
+                    Trigger::Elapsed { dt_s: dt_hp },
+                ));
                 operations.push(Operation {
                     tas_mps: tas_end,
                     elevator: ElevatorTarget::PathAngle { gamma_rad: gamma },
-                    aileron: AileronTarget::Bearing { chi_rad: chi_end.to_radians() },
+                    aileron: AileronTarget::Bearing {
+                        chi_rad: chi_end.to_radians(),
+                    },
                     trigger: Trigger::PressureAltitude { hp_m: hp_end },
                 });
                 operations.push(hold(
                     tas_end,
                     hp_end,
                     chi_end,
-                    Trigger::Time { t_s: cfg.duration_s },
+                    Trigger::Time {
+                        t_s: cfg.duration_s,
+                    },
                 ));
             }
             MissionKind::Alternate => {
@@ -362,7 +412,9 @@ impl Mission {
                     operations.push(turn(tas_ini, hp_ini, chi_from, chi_to, d));
                     let trigger = match legs.get(k) {
                         Some(&dt_s) => Trigger::Elapsed { dt_s },
-                        None => Trigger::Time { t_s: cfg.duration_s },
+                        None => Trigger::Time {
+                            t_s: cfg.duration_s,
+                        },
                     };
                     operations.push(hold(tas_ini, hp_ini, chi_to, trigger));
                     chi_from = chi_to;

@@ -2,6 +2,15 @@
 //! mission is a list of operations, each fixing a target per channel and a trigger that ends
 //! it; PID loops turn targets into throttle and surface commands.
 
+pub mod config;
+pub mod controller;
+pub mod guidance;
+pub mod pid;
+
+pub use config::{ControlConfig, ControlConfigError, PidConfig};
+pub use controller::Controller;
+pub use guidance::{Guidance, GuidanceError};
+
 use ianav::math::wgs84::Geodetic;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};

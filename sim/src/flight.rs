@@ -1,0 +1,606 @@
+//! One simulated flight (paper figure "flow diagram", table "Working frequencies"): the
+//! environment and the 6-DOF aircraft integrated at 500 Hz, sensors sampled at 100 Hz (GNSS at
+//! 1 Hz until it is lost), guidance and control at 50 Hz closing the loop on the *navigation
+//! estimate*, and truth output at 10 Hz. A flight is a pure function of its setup and seed.
+
+use ianav::env::atmosphere::{self, AtmosphereOffsets};
+use ianav::env::magnetic::{MagneticGrid, MagneticModel};
+use ianav::math::wgs84::Geodetic;
+use ianav::math::{so3, wgs84};
+use ianav::sensors::SensorEvent;
+use nalgebra::{UnitQuaternion, Vector3};
+use serde::{Deserialize, Serialize};
+
+use crate::aircraft::{
+    Actuators, AirInputs, AirRelative, Aircraft, AircraftParams, Controls, Loads, TruthState,
+    air_relative,
+};
+use crate::control::{ControlConfig, Controller, Guidance, Navigation, Operation, TruthNavigation};
+use crate::env::{
+    TrueGravity, TrueMagneticField, Turbulence, TurbulenceConfig, WeatherOffsets, WindField,
+};
+use crate::rng;
+use crate::scenario::{Mission, ScenarioConfig};
+use crate::sensors::{SensorSuite, SensorTruth, SensorsConfig};
+
+/// Errors setting up a flight.
+#[derive(Debug, thiserror::Error)]
+pub enum FlightError {
+    /// A rate is not a whole multiple of the integration step, or not positive.
+    #[error(
+        "rates: `{field}` = {value} s must be a positive whole multiple of the {step_s} s integration step"
+    )]
+    Rate {
+        /// Offending key.
+        field: &'static str,
+        /// Its value, s.
+        value: f64,
+        /// Integration step, s.
+        step_s: f64,
+    },
+    /// The magnetic model rejected the scenario's epoch or position.
+    #[error(transparent)]
+    Magnetic(#[from] ianav::env::magnetic::MagneticError),
+    /// The aircraft cannot trim at the initial conditions.
+    #[error("initial trim: {0}")]
+    Trim(String),
+}
+
+/// Discrete rates of the simulation (paper table "Working frequencies"); the sensor and GNSS
+/// periods come from the sensor configuration, the control period from the control one.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct RatesConfig {
+    /// Truth integration step, s (500 Hz).
+    pub truth_step_s: f64,
+    /// Truth output period, s (10 Hz).
+    pub output_period_s: f64,
+}
+
+impl Default for RatesConfig {
+    fn default() -> Self {
+        Self {
+            truth_step_s: 0.002,
+            output_period_s: 0.1,
+        }
+    }
+}
+
+/// Everything that defines a flight but the seed.
+#[derive(Debug, Clone)]
+pub struct FlightSetup {
+    /// Scenario (mission draws, weather, wind, timing).
+    pub scenario: ScenarioConfig,
+    /// Aircraft parameters.
+    pub aircraft: AircraftParams,
+    /// Sensor models.
+    pub sensors: SensorsConfig,
+    /// Control gains.
+    pub control: ControlConfig,
+    /// Simulation rates.
+    pub rates: RatesConfig,
+    /// Fly this mission instead of drawing one (tests and custom missions).
+    pub mission_override: Option<Mission>,
+}
+
+impl FlightSetup {
+    /// The built-in scenario `number` with the default aircraft, sensors and control.
+    pub fn builtin(number: u8) -> Result<Self, crate::scenario::ScenarioError> {
+        Ok(Self {
+            scenario: ScenarioConfig::builtin(number)?,
+            aircraft: AircraftParams::default(),
+            sensors: SensorsConfig::default(),
+            control: ControlConfig::default(),
+            rates: RatesConfig::default(),
+            mission_override: None,
+        })
+    }
+}
+
+/// Truth at the output rate: what the trajectory file holds.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthSample {
+    /// Mission time, s (negative during the warm-up).
+    pub t_s: f64,
+    /// Position of the CG.
+    pub pos: Geodetic,
+    /// Ground velocity, NED, m/s.
+    pub v_ned_mps: Vector3<f64>,
+    /// Attitude.
+    pub q_nb: UnitQuaternion<f64>,
+    /// Yaw, pitch, bank, rad.
+    pub euler_rad: Vector3<f64>,
+    /// Air-relative motion.
+    pub air: AirRelative,
+    /// Pressure altitude, m.
+    pub hp_m: f64,
+    /// Low-frequency wind, NED, m/s.
+    pub wind_ned_mps: Vector3<f64>,
+    /// Turbulence, body axes, m/s.
+    pub turb_b_mps: Vector3<f64>,
+    /// Atmosphere offsets.
+    pub offsets: AtmosphereOffsets,
+    /// Control surface and throttle positions.
+    pub controls: Controls,
+    /// Ground distance flown since mission time 0, m.
+    pub distance_m: f64,
+    /// Mass, kg.
+    pub mass_kg: f64,
+    /// Index of the guidance operation being flown.
+    pub operation: usize,
+}
+
+/// Receives what a flight produces; every method has an empty default.
+pub trait FlightObserver {
+    /// Every sensor sample, in time order.
+    fn sensor_event(&mut self, _event: &SensorEvent) {}
+    /// Truth at the output rate.
+    fn truth_sample(&mut self, _sample: &TruthSample) {}
+    /// A guidance operation started at mission time `t_s`.
+    fn operation_started(&mut self, _t_s: f64, _index: usize, _operation: &Operation) {}
+}
+
+/// Observer that ignores everything (benchmarks).
+#[derive(Debug, Default, Clone, Copy)]
+pub struct NoObserver;
+impl FlightObserver for NoObserver {}
+
+/// Facts about a finished flight.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FlightSummary {
+    /// Seed of the run.
+    pub seed: u64,
+    /// Scenario name.
+    pub scenario: String,
+    /// Mission time flown after the warm-up, s.
+    pub duration_s: f64,
+    /// Ground distance flown from mission time 0, m.
+    pub distance_m: f64,
+    /// Guidance operations started (including the first), in order, with mission start times.
+    pub operations: Vec<OperationRecord>,
+    /// Number of truth integration steps.
+    pub truth_steps: u64,
+    /// Number of sensor events produced.
+    pub sensor_events: u64,
+    /// Final position.
+    pub final_pos: Geodetic,
+    /// Lowest and highest geometric altitude after mission time 0, m.
+    pub h_range_m: [f64; 2],
+    /// Fuel burnt, kg.
+    pub fuel_burnt_kg: f64,
+}
+
+/// One executed operation.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct OperationRecord {
+    /// Index in the mission.
+    pub index: usize,
+    /// Mission time it started, s.
+    pub t_start_s: f64,
+    /// The operation.
+    pub operation: Operation,
+}
+
+/// A flight in progress.
+pub struct Flight {
+    seed: u64,
+    scenario_name: String,
+    rates: RatesConfig,
+    /// Truth steps per sensor, control and output period, and per GNSS fix.
+    steps_per_sensor: u64,
+    steps_per_air: u64,
+    steps_per_mag: u64,
+    steps_per_control: u64,
+    steps_per_output: u64,
+    steps_per_gnss: u64,
+    warmup_us: u64,
+    end_us: u64,
+    gnss_loss_us: u64,
+    step_index: u64,
+
+    aircraft: Aircraft,
+    actuators: Actuators,
+    x: TruthState,
+    command: Controls,
+    initial_mass_kg: f64,
+
+    weather: WeatherOffsets,
+    wind: WindField,
+    turbulence: Turbulence,
+    gravity: TrueGravity,
+    magnetic: TrueMagneticField,
+    /// Cached interpolation of the magnetic model (the exact WMM costs ~0.8 µs per call).
+    magnetic_grid: MagneticGrid,
+    /// Last true magnetic field, NED, nT (kept if the model cannot be evaluated).
+    mag_ned_nt: Vector3<f64>,
+    /// Turbulence and air at the current state.
+    air: AirInputs,
+    hp_m: f64,
+    offsets: AtmosphereOffsets,
+
+    sensors: SensorSuite,
+    guidance: Guidance,
+    controller: Controller,
+    navigation: TruthNavigation,
+
+    mission: Mission,
+    distance_m: f64,
+    h_range_m: [f64; 2],
+    sensor_events: u64,
+    operations: Vec<OperationRecord>,
+}
+
+fn steps_per(field: &'static str, period_s: f64, step_s: f64) -> Result<u64, FlightError> {
+    let ratio = period_s / step_s;
+    let n = ratio.round();
+    if !(period_s.is_finite() && n >= 1.0 && (ratio - n).abs() < 1e-6) {
+        return Err(FlightError::Rate {
+            field,
+            value: period_s,
+            step_s,
+        });
+    }
+    Ok(n as u64)
+}
+
+/// Seconds → microseconds, rounded (times are validated finite and non-negative).
+fn to_us(t_s: f64) -> u64 {
+    (t_s * 1e6).round().max(0.0) as u64
+}
+
+impl Flight {
+    /// Set up the flight of `setup` with seed `seed`: draw the mission, weather, wind,
+    /// turbulence, geophysics and sensor errors from their own streams; trim the aircraft at
+    /// the initial airspeed and pressure altitude, heading so that the ground track has the
+    /// initial bearing.
+    pub fn new(setup: &FlightSetup, seed: u64) -> Result<Self, FlightError> {
+        let scn = &setup.scenario;
+        let rates = setup.rates;
+        let step_s = rates.truth_step_s;
+        if !(step_s.is_finite() && step_s > 0.0) {
+            return Err(FlightError::Rate {
+                field: "rates.truth_step_s",
+                value: step_s,
+                step_s,
+            });
+        }
+        let steps_per_sensor =
+            steps_per("sensors.imu_period_s", setup.sensors.imu_period_s, step_s)?;
+        let steps_per_air = steps_per("sensors.air.period_s", setup.sensors.air.period_s, step_s)?;
+        let steps_per_mag = steps_per("sensors.mag.period_s", setup.sensors.mag.period_s, step_s)?;
+        let steps_per_gnss =
+            steps_per("sensors.gnss.period_s", setup.sensors.gnss.period_s, step_s)?;
+        let steps_per_control = steps_per("control.period_s", setup.control.period_s, step_s)?;
+        let steps_per_output = steps_per("rates.output_period_s", rates.output_period_s, step_s)?;
+
+        let mission = match &setup.mission_override {
+            Some(m) => m.clone(),
+            None => Mission::draw(scn, &mut rng::stream(seed, "guidance")),
+        };
+        let weather = WeatherOffsets::draw(&scn.offsets, &mut rng::stream(seed, "offsets"));
+        let wind = WindField::draw(&scn.wind, &mut rng::stream(seed, "wind"));
+        let turbulence = Turbulence::new(
+            &TurbulenceConfig {
+                factor: scn.turbulence_factor,
+            },
+            rng::stream(seed, "turbulence"),
+        );
+        let mut geo_rng = rng::stream(seed, "geophysics");
+        let gravity = TrueGravity::draw(&mut geo_rng);
+        let magnetic =
+            TrueMagneticField::draw(MagneticModel::new(scn.magnetic_decimal_year)?, &mut geo_rng);
+
+        let mut magnetic_grid = MagneticGrid::new(magnetic.model.clone());
+        let aircraft = Aircraft::new(setup.aircraft.clone());
+        let t0_s = -scn.warmup_s;
+        let offsets = weather.at(t0_s);
+        let hp_m = mission.hp_ini_m;
+        let h_m = atmosphere::geometric_from_pressure_altitude_m(hp_m, &offsets);
+        let p_pa = atmosphere::pressure_pa(hp_m);
+        let temp_k = atmosphere::temperature_k(hp_m, offsets.delta_t_k);
+        let wind_ned_mps = wind.at(t0_s);
+        let still_air = AirInputs {
+            p_pa,
+            temp_k,
+            rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
+            wind_ned_mps: Vector3::zeros(),
+            turb_b_mps: Vector3::zeros(),
+        };
+        let mass_kg = setup.aircraft.initial_mass_kg;
+        let trim = aircraft
+            .trim(mission.tas_ini_mps, 0.0, &still_air, mass_kg)
+            .map_err(|e| FlightError::Trim(e.to_string()))?;
+
+        // Heading that cancels the crosswind so the ground track has bearing χ_ini.
+        let chi = mission.chi_ini_rad;
+        let v_air_hor = mission.tas_ini_mps * (trim.pitch_rad - trim.aoa_rad).cos();
+        let crosswind = -wind_ned_mps.x * chi.sin() + wind_ned_mps.y * chi.cos();
+        let psi = chi - (crosswind / v_air_hor).clamp(-0.9, 0.9).asin();
+        let q_nb = so3::from_euler_zyx(psi, trim.pitch_rad, 0.0);
+        let v_tas_b =
+            mission.tas_ini_mps * Vector3::new(trim.aoa_rad.cos(), 0.0, trim.aoa_rad.sin());
+        let pos = Geodetic {
+            lat_rad: scn.start.lat_deg.to_radians(),
+            lon_rad: scn.start.lon_deg.to_radians(),
+            h_m,
+        };
+        let v_b_mps = v_tas_b + q_nb.inverse() * wind_ned_mps;
+        let v_ned = q_nb * v_b_mps;
+        let w_in_n = wgs84::omega_ie_n(pos.lat_rad) + wgs84::omega_en_n(&pos, &v_ned);
+        let x = TruthState {
+            pos,
+            v_b_mps,
+            q_nb,
+            w_ib_b_rps: q_nb.inverse() * w_in_n,
+            mass_kg,
+        };
+        // Trim deflections, including the aileron and rudder against propeller torque.
+        let command = trim.controls();
+        let actuators = Actuators::new(&setup.aircraft.actuators, command);
+        let air = AirInputs {
+            wind_ned_mps,
+            ..still_air
+        };
+        let air_rel = air_relative(&x, &air);
+        let navigation = TruthNavigation::from_truth(0, &x, &air_rel, &w_in_n, hp_m);
+        let mut controller = Controller::new(&setup.control, &navigation.estimate());
+        controller.set_trim(&command);
+        let guidance = Guidance::new(mission.operations.clone());
+        let sensors = SensorSuite::new(&setup.sensors, seed);
+
+        Ok(Self {
+            seed,
+            scenario_name: scn.name.clone(),
+            rates,
+            steps_per_sensor,
+            steps_per_air,
+            steps_per_mag,
+            steps_per_control,
+            steps_per_output,
+            steps_per_gnss,
+            warmup_us: to_us(scn.warmup_s),
+            end_us: to_us(scn.warmup_s + scn.duration_s),
+            gnss_loss_us: to_us(scn.warmup_s + scn.gnss_loss_s),
+            step_index: 0,
+            aircraft,
+            actuators,
+            x,
+            command,
+            initial_mass_kg: mass_kg,
+            weather,
+            wind,
+            turbulence,
+            gravity,
+            mag_ned_nt: magnetic_grid.field_ned_nt(&pos)? + magnetic.error_ned_nt,
+            magnetic,
+            magnetic_grid,
+            air,
+            hp_m,
+            offsets,
+            sensors,
+            guidance,
+            controller,
+            navigation,
+            mission,
+            distance_m: 0.0,
+            h_range_m: [f64::INFINITY, f64::NEG_INFINITY],
+            sensor_events: 0,
+            operations: Vec::new(),
+        })
+    }
+
+    /// Simulation time since the start of the warm-up, microseconds.
+    pub fn t_us(&self) -> u64 {
+        self.step_index * to_us(self.rates.truth_step_s)
+    }
+
+    /// Mission time, s (negative during the warm-up).
+    pub fn mission_time_s(&self) -> f64 {
+        (self.t_us() as f64 - self.warmup_us as f64) * 1e-6
+    }
+
+    /// Mission end, s.
+    pub fn end_time_s(&self) -> f64 {
+        (self.end_us - self.warmup_us) as f64 * 1e-6
+    }
+
+    /// Whether the mission end has been reached.
+    pub fn finished(&self) -> bool {
+        self.t_us() >= self.end_us
+    }
+
+    /// The current truth state.
+    pub fn truth(&self) -> &TruthState {
+        &self.x
+    }
+
+    /// The drawn mission.
+    pub fn mission(&self) -> &Mission {
+        &self.mission
+    }
+
+    /// The drawn weather offsets.
+    pub fn weather(&self) -> &WeatherOffsets {
+        &self.weather
+    }
+
+    /// The drawn wind.
+    pub fn wind(&self) -> &WindField {
+        &self.wind
+    }
+
+    /// The sensors (their true errors initialise the INS of the next issue).
+    pub fn sensors(&self) -> &SensorSuite {
+        &self.sensors
+    }
+
+    /// Truth at the current instant.
+    pub fn truth_sample(&self) -> TruthSample {
+        TruthSample {
+            t_s: self.mission_time_s(),
+            pos: self.x.pos,
+            v_ned_mps: self.x.q_nb * self.x.v_b_mps,
+            q_nb: self.x.q_nb,
+            euler_rad: so3::euler_zyx(&self.x.q_nb),
+            air: air_relative(&self.x, &self.air),
+            hp_m: self.hp_m,
+            wind_ned_mps: self.air.wind_ned_mps,
+            turb_b_mps: self.air.turb_b_mps,
+            offsets: self.offsets,
+            controls: self.actuators.position(),
+            distance_m: self.distance_m,
+            mass_kg: self.x.mass_kg,
+            operation: self.guidance.index(),
+        }
+    }
+
+    /// Advance one truth step.
+    pub fn step(&mut self, observer: &mut impl FlightObserver) {
+        let k = self.step_index;
+        let t_mission_s = self.mission_time_s();
+        if k.is_multiple_of(self.steps_per_control) {
+            let nav = self.navigation.estimate();
+            if let Some(index) = self.guidance.update(t_mission_s, &nav) {
+                self.record_operation(t_mission_s, index, observer);
+            } else if k == 0 {
+                self.record_operation(t_mission_s, 0, observer);
+            }
+            self.command = self.controller.step(self.guidance.current(), &nav);
+        }
+        let dt_s = self.rates.truth_step_s;
+        let position = self.actuators.step(&self.command, dt_s);
+
+        // Air at the current position and time; turbulence advanced by one step.
+        self.offsets = self.weather.at(t_mission_s);
+        self.hp_m = atmosphere::pressure_altitude_from_geometric_m(self.x.pos.h_m, &self.offsets);
+        let p_pa = atmosphere::pressure_pa(self.hp_m);
+        let temp_k = atmosphere::temperature_k(self.hp_m, self.offsets.delta_t_k);
+        let tas_prev = air_relative(&self.x, &self.air).tas_mps;
+        self.air = AirInputs {
+            p_pa,
+            temp_k,
+            rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
+            wind_ned_mps: self.wind.at(t_mission_s),
+            turb_b_mps: self.turbulence.step(dt_s, tas_prev, self.x.pos.h_m),
+        };
+        let gravity = self.gravity.gravity_ned_mps2(&self.x.pos);
+        let v_before = self.x.q_nb * self.x.v_b_mps;
+        self.x = self
+            .aircraft
+            .step(&self.x, &position, &self.air, &gravity, dt_s);
+        self.step_index += 1;
+
+        if self.t_us() > self.warmup_us {
+            // Trapezoidal integral of the horizontal ground speed (2nd order in the step).
+            let v_after = self.x.q_nb * self.x.v_b_mps;
+            self.distance_m +=
+                0.5 * (v_before.x.hypot(v_before.y) + v_after.x.hypot(v_after.y)) * dt_s;
+            self.h_range_m = [
+                self.h_range_m[0].min(self.x.pos.h_m),
+                self.h_range_m[1].max(self.x.pos.h_m),
+            ];
+        }
+        let k = self.step_index;
+        let due = |every: u64| k.is_multiple_of(every);
+        if due(self.steps_per_sensor)
+            || due(self.steps_per_air)
+            || due(self.steps_per_mag)
+            || due(self.steps_per_gnss)
+        {
+            self.sample_sensors(&position, observer);
+        }
+        if k.is_multiple_of(self.steps_per_output) {
+            observer.truth_sample(&self.truth_sample());
+        }
+    }
+
+    fn record_operation(&mut self, t_s: f64, index: usize, observer: &mut impl FlightObserver) {
+        let operation = *self.guidance.current();
+        observer.operation_started(t_s, index, &operation);
+        self.operations.push(OperationRecord {
+            index,
+            t_start_s: t_s,
+            operation,
+        });
+    }
+
+    fn sample_sensors(&mut self, controls: &Controls, observer: &mut impl FlightObserver) {
+        let t_us = self.t_us();
+        let loads: Loads = self.aircraft.loads(&self.x, controls, &self.air);
+        let v_ned_mps = self.x.q_nb * self.x.v_b_mps;
+        if let Ok(model_ned_nt) = self.magnetic_grid.field_ned_nt(&self.x.pos) {
+            self.mag_ned_nt = model_ned_nt + self.magnetic.error_ned_nt;
+        }
+        let mag_ned_nt = self.mag_ned_nt;
+        let truth = SensorTruth {
+            t_us,
+            pos: self.x.pos,
+            v_ned_mps,
+            q_nb: self.x.q_nb,
+            w_ib_b_rps: self.x.w_ib_b_rps,
+            w_dot_ib_b_rps2: loads.w_dot_ib_b_rps2,
+            f_ib_b_mps2: loads.f_ib_b_mps2,
+            cg_from_ref_b_m: self.aircraft.cg_from_reference_b_m(self.x.mass_kg),
+            mag_ned_nt,
+            tas_mps: loads.air.tas_mps,
+            aoa_rad: loads.air.aoa_rad,
+            aos_rad: loads.air.aos_rad,
+            p_pa: self.air.p_pa,
+            temp_k: self.air.temp_k,
+        };
+        let k = self.step_index;
+        if k.is_multiple_of(self.steps_per_sensor) {
+            observer.sensor_event(&SensorEvent::Imu(self.sensors.sample_imu(&truth)));
+            self.sensor_events += 1;
+        }
+        if k.is_multiple_of(self.steps_per_air) {
+            observer.sensor_event(&SensorEvent::Air(self.sensors.sample_air(&truth)));
+            self.sensor_events += 1;
+        }
+        if k.is_multiple_of(self.steps_per_mag) {
+            observer.sensor_event(&SensorEvent::Mag(self.sensors.sample_mag(&truth)));
+            self.sensor_events += 1;
+        }
+        if k.is_multiple_of(self.steps_per_gnss) && t_us <= self.gnss_loss_us {
+            observer.sensor_event(&SensorEvent::Gnss(self.sensors.sample_gnss(&truth)));
+            self.sensor_events += 1;
+        }
+        // Until the INS flies in the loop, guidance and control see the truth.
+        let w_in_n =
+            wgs84::omega_ie_n(self.x.pos.lat_rad) + wgs84::omega_en_n(&self.x.pos, &v_ned_mps);
+        self.navigation =
+            TruthNavigation::from_truth(t_us, &self.x, &loads.air, &w_in_n, self.hp_m);
+    }
+
+    /// Fly to the end of the mission, reporting progress (mission seconds) to `progress`.
+    pub fn run(
+        &mut self,
+        observer: &mut impl FlightObserver,
+        mut progress: impl FnMut(f64),
+    ) -> FlightSummary {
+        let report_every = self.steps_per_output * 10;
+        while !self.finished() {
+            self.step(observer);
+            if self.step_index.is_multiple_of(report_every) {
+                progress(self.mission_time_s());
+            }
+        }
+        self.summary()
+    }
+
+    /// Summary of the flight so far.
+    pub fn summary(&self) -> FlightSummary {
+        FlightSummary {
+            seed: self.seed,
+            scenario: self.scenario_name.clone(),
+            duration_s: self.mission_time_s().max(0.0),
+            distance_m: self.distance_m,
+            operations: self.operations.clone(),
+            truth_steps: self.step_index,
+            sensor_events: self.sensor_events,
+            final_pos: self.x.pos,
+            h_range_m: self.h_range_m,
+            fuel_burnt_kg: self.initial_mass_kg - self.x.mass_kg,
+        }
+    }
+}

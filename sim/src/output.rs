@@ -1,0 +1,385 @@
+//! Files written by `ianav-sim run`: the decimated truth trajectory (CSV), every sensor sample
+//! (the binary log of `ianav::io::sensor_log`), a summary (TOML), PNG plots (ground track,
+//! altitude, airspeed, bank) and a Markdown report tying them together.
+
+use std::fmt::Write as _;
+use std::fs::File;
+use std::io::{self, BufWriter, Write};
+use std::path::{Path, PathBuf};
+
+use ianav::io::sensor_log::SensorLogWriter;
+use ianav::math::wgs84::{self, Geodetic};
+use ianav::sensors::SensorEvent;
+
+use crate::control::Operation;
+use crate::flight::{FlightObserver, FlightSummary, TruthSample};
+use crate::plots::{self, Chart, PALETTE, Series};
+
+/// Errors writing run outputs.
+#[derive(Debug, thiserror::Error)]
+pub enum OutputError {
+    /// File system failure, with the file concerned.
+    #[error("{path}: {source}")]
+    Io {
+        /// File or directory.
+        path: String,
+        /// Cause.
+        source: io::Error,
+    },
+    /// A plot could not be drawn.
+    #[error(transparent)]
+    Plot(#[from] plots::PlotError),
+    /// The summary could not be serialised.
+    #[error("summary: {0}")]
+    Summary(#[from] toml::ser::Error),
+}
+
+/// Names of the files of a run directory.
+pub mod files {
+    /// Truth trajectory at the output rate.
+    pub const TRUTH: &str = "truth.csv";
+    /// Sensor samples.
+    pub const SENSORS: &str = "sensors.bin";
+    /// Machine-readable summary.
+    pub const SUMMARY: &str = "summary.toml";
+    /// Human-readable report.
+    pub const REPORT: &str = "report.md";
+}
+
+const TRUTH_HEADER: &str = "t_s,lat_deg,lon_deg,h_m,hp_m,v_n_mps,v_e_mps,v_d_mps,yaw_deg,pitch_deg,\
+bank_deg,tas_mps,aoa_deg,aos_deg,wind_n_mps,wind_e_mps,wind_d_mps,turb_x_mps,turb_y_mps,\
+turb_z_mps,delta_t_k,delta_p_pa,throttle,elevator_deg,aileron_deg,rudder_deg,mass_kg,\
+distance_m,operation";
+
+/// Plot points kept per second of flight (the CSV keeps every output sample).
+const PLOT_EVERY_N_SAMPLES: usize = 10;
+
+/// One decimated point of the plots.
+#[derive(Debug, Clone, Copy)]
+struct PlotPoint {
+    t_s: f64,
+    pos: Geodetic,
+    h_m: f64,
+    hp_m: f64,
+    tas_mps: f64,
+    bank_deg: f64,
+    pitch_deg: f64,
+}
+
+/// Observer that writes a run directory as the flight goes (memory stays flat: the trajectory
+/// and samples stream to disk; only one plot point per second stays in memory).
+pub struct RunWriter {
+    dir: PathBuf,
+    truth: BufWriter<File>,
+    sensors: Option<SensorLogWriter<BufWriter<File>>>,
+    plot: Vec<PlotPoint>,
+    samples_seen: usize,
+    operations: Vec<(f64, usize, Operation)>,
+    line: String,
+    first_error: Option<OutputError>,
+}
+
+fn create(path: &Path) -> Result<BufWriter<File>, OutputError> {
+    File::create(path)
+        .map(|f| BufWriter::with_capacity(1 << 16, f))
+        .map_err(|source| OutputError::Io {
+            path: path.display().to_string(),
+            source,
+        })
+}
+
+impl RunWriter {
+    /// Create `dir` and open the streaming files. `record_sensors` = false skips the sensor
+    /// log (it is the largest file).
+    pub fn new(dir: &Path, record_sensors: bool) -> Result<Self, OutputError> {
+        std::fs::create_dir_all(dir).map_err(|source| OutputError::Io {
+            path: dir.display().to_string(),
+            source,
+        })?;
+        let mut truth = create(&dir.join(files::TRUTH))?;
+        writeln!(truth, "{TRUTH_HEADER}").map_err(|source| OutputError::Io {
+            path: dir.join(files::TRUTH).display().to_string(),
+            source,
+        })?;
+        let sensors = if record_sensors {
+            let path = dir.join(files::SENSORS);
+            Some(
+                SensorLogWriter::new(create(&path)?).map_err(|source| OutputError::Io {
+                    path: path.display().to_string(),
+                    source,
+                })?,
+            )
+        } else {
+            None
+        };
+        Ok(Self {
+            dir: dir.to_path_buf(),
+            truth,
+            sensors,
+            plot: Vec::new(),
+            samples_seen: 0,
+            operations: Vec::new(),
+            line: String::with_capacity(512),
+            first_error: None,
+        })
+    }
+
+    fn keep_error(&mut self, file: &str, result: io::Result<()>) {
+        if let Err(source) = result
+            && self.first_error.is_none()
+        {
+            let path = self.dir.join(file).display().to_string();
+            self.first_error = Some(OutputError::Io { path, source });
+        }
+    }
+
+    /// Flush the streams, write the summary, plots and report. Returns the report's path.
+    pub fn finish(mut self, summary: &FlightSummary) -> Result<PathBuf, OutputError> {
+        let flushed = self.truth.flush();
+        self.keep_error(files::TRUTH, flushed);
+        if let Some(writer) = self.sensors.take() {
+            let finished = writer.finish().map(|_| ());
+            self.keep_error(files::SENSORS, finished);
+        }
+        if let Some(e) = self.first_error.take() {
+            return Err(e);
+        }
+        let write = |name: &str, text: &str| {
+            std::fs::write(self.dir.join(name), text).map_err(|source| OutputError::Io {
+                path: self.dir.join(name).display().to_string(),
+                source,
+            })
+        };
+        write(files::SUMMARY, &toml::to_string_pretty(summary)?)?;
+        let plots = self.draw_plots()?;
+        write(files::REPORT, &self.report(summary, &plots))?;
+        Ok(self.dir.join(files::REPORT))
+    }
+
+    fn draw_plots(&self) -> Result<Vec<(&'static str, &'static str)>, OutputError> {
+        let mut drawn = Vec::new();
+        let Some(origin) = self.plot.first().map(|p| p.pos) else {
+            return Ok(drawn);
+        };
+        let t = |f: fn(&PlotPoint) -> f64| -> Vec<(f64, f64)> {
+            self.plot.iter().map(|p| (p.t_s, f(p))).collect()
+        };
+        let line = |label: &str, points, k: usize| Series {
+            label: label.to_owned(),
+            points,
+            rgb: PALETTE[k],
+            dashed: false,
+        };
+        let track: Vec<(f64, f64)> = self
+            .plot
+            .iter()
+            .map(|p| {
+                let d = wgs84::ned_difference_m(&origin, &p.pos);
+                (d.y / 1000.0, d.x / 1000.0)
+            })
+            .collect();
+        let charts = [
+            (
+                "ground_track.png",
+                "Ground track",
+                Chart {
+                    title: "Ground track (truth)",
+                    x_label: "east [km]",
+                    y_label: "north [km]",
+                    series: vec![line("", track, 0)],
+                    equal_axes: true,
+                },
+            ),
+            (
+                "altitude.png",
+                "Altitude",
+                Chart {
+                    title: "Altitude (truth)",
+                    x_label: "mission time [s]",
+                    y_label: "altitude [m]",
+                    series: vec![
+                        line("geometric h", t(|p| p.h_m), 0),
+                        line("pressure Hp", t(|p| p.hp_m), 1),
+                    ],
+                    equal_axes: false,
+                },
+            ),
+            (
+                "airspeed.png",
+                "Airspeed",
+                Chart {
+                    title: "True airspeed (truth)",
+                    x_label: "mission time [s]",
+                    y_label: "airspeed [m/s]",
+                    series: vec![line("", t(|p| p.tas_mps), 0)],
+                    equal_axes: false,
+                },
+            ),
+            (
+                "attitude.png",
+                "Bank and pitch",
+                Chart {
+                    title: "Bank and pitch (truth)",
+                    x_label: "mission time [s]",
+                    y_label: "angle [deg]",
+                    series: vec![
+                        line("bank", t(|p| p.bank_deg), 0),
+                        line("pitch", t(|p| p.pitch_deg), 1),
+                    ],
+                    equal_axes: false,
+                },
+            ),
+        ];
+        for (file, caption, chart) in charts {
+            plots::draw(&self.dir.join(file), &chart, 900, 560)?;
+            drawn.push((file, caption));
+        }
+        Ok(drawn)
+    }
+
+    fn report(&self, s: &FlightSummary, plots: &[(&str, &str)]) -> String {
+        let mut r = String::new();
+        let _ = writeln!(r, "# {}\n", s.scenario);
+        let _ = writeln!(r, "Seed {}. Produced by `ianav-sim run`.\n", s.seed);
+        let _ = writeln!(r, "| quantity | value |\n|---|---|");
+        let _ = writeln!(r, "| mission time flown | {:.1} s |", s.duration_s);
+        let _ = writeln!(r, "| ground distance flown | {:.0} m |", s.distance_m);
+        let _ = writeln!(
+            r,
+            "| geometric altitude range | {:.0} to {:.0} m |",
+            s.h_range_m[0], s.h_range_m[1]
+        );
+        let _ = writeln!(r, "| fuel burnt | {:.3} kg |", s.fuel_burnt_kg);
+        let _ = writeln!(
+            r,
+            "| final position | {:.5}° N, {:.5}° E, {:.0} m |",
+            s.final_pos.lat_rad.to_degrees(),
+            s.final_pos.lon_rad.to_degrees(),
+            s.final_pos.h_m
+        );
+        let _ = writeln!(r, "| sensor samples | {} |", s.sensor_events);
+        let _ = writeln!(r, "| integration steps | {} |\n", s.truth_steps);
+        let _ = writeln!(
+            r,
+            "## Manoeuvres executed\n\n| # | start [s] | airspeed [m/s] | elevator channel | aileron channel | ends on |\n|---|---|---|---|---|---|"
+        );
+        for (t_s, index, op) in &self.operations {
+            let _ = writeln!(
+                r,
+                "| {index} | {t_s:.1} | {:.2} | {} | {} | {} |",
+                op.tas_mps,
+                describe_elevator(op),
+                describe_aileron(op),
+                describe_trigger(op)
+            );
+        }
+        let _ = writeln!(r, "\n## Plots\n");
+        for (file, caption) in plots {
+            let _ = writeln!(r, "![{caption}]({file})\n");
+        }
+        let _ = writeln!(
+            r,
+            "Files: `{}` (truth every output period), `{}` (sensor samples, format in \
+             `ianav::io::sensor_log`), `{}`.",
+            files::TRUTH,
+            files::SENSORS,
+            files::SUMMARY
+        );
+        r
+    }
+}
+
+fn describe_elevator(op: &Operation) -> String {
+    use crate::control::ElevatorTarget as E;
+    match op.elevator {
+        E::PressureAltitude { hp_m } => format!("Hp {hp_m:.0} m"),
+        E::PathAngle { gamma_rad } => format!("γ {:+.1}°", gamma_rad.to_degrees()),
+        E::Pitch { theta_rad } => format!("θ {:+.1}°", theta_rad.to_degrees()),
+    }
+}
+
+fn describe_aileron(op: &Operation) -> String {
+    use crate::control::AileronTarget as A;
+    match op.aileron {
+        A::Bearing { chi_rad } => format!("χ {:.0}°", chi_rad.to_degrees()),
+        A::Bank { xi_rad } => format!("bank {:+.0}°", xi_rad.to_degrees()),
+    }
+}
+
+fn describe_trigger(op: &Operation) -> String {
+    use crate::control::Trigger as T;
+    match op.trigger {
+        T::Time { t_s } => format!("t = {t_s:.1} s"),
+        T::Elapsed { dt_s } => format!("after {dt_s:.1} s"),
+        T::PressureAltitude { hp_m } => format!("Hp crosses {hp_m:.0} m"),
+        T::Bearing { chi_rad } => format!("χ crosses {:.0}°", chi_rad.to_degrees()),
+    }
+}
+
+impl FlightObserver for RunWriter {
+    fn sensor_event(&mut self, event: &SensorEvent) {
+        if let Some(writer) = self.sensors.as_mut() {
+            let result = writer.write(event);
+            self.keep_error(files::SENSORS, result);
+        }
+    }
+
+    fn truth_sample(&mut self, s: &TruthSample) {
+        let e = s.euler_rad.map(f64::to_degrees);
+        let v = s.v_ned_mps;
+        let c = s.controls;
+        self.line.clear();
+        let _ = write!(
+            self.line,
+            "{:.3},{:.9},{:.9},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},\
+             {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.4},{:.5},{:.2},{}",
+            s.t_s,
+            s.pos.lat_rad.to_degrees(),
+            s.pos.lon_rad.to_degrees(),
+            s.pos.h_m,
+            s.hp_m,
+            v.x,
+            v.y,
+            v.z,
+            e.x,
+            e.y,
+            e.z,
+            s.air.tas_mps,
+            s.air.aoa_rad.to_degrees(),
+            s.air.aos_rad.to_degrees(),
+            s.wind_ned_mps.x,
+            s.wind_ned_mps.y,
+            s.wind_ned_mps.z,
+            s.turb_b_mps.x,
+            s.turb_b_mps.y,
+            s.turb_b_mps.z,
+            s.offsets.delta_t_k,
+            s.offsets.delta_p_pa,
+            c.throttle,
+            c.elevator_rad.to_degrees(),
+            c.aileron_rad.to_degrees(),
+            c.rudder_rad.to_degrees(),
+            s.mass_kg,
+            s.distance_m,
+            s.operation
+        );
+        let result = writeln!(self.truth, "{}", self.line);
+        self.keep_error(files::TRUTH, result);
+        if s.t_s >= 0.0 && self.samples_seen.is_multiple_of(PLOT_EVERY_N_SAMPLES) {
+            self.plot.push(PlotPoint {
+                t_s: s.t_s,
+                pos: s.pos,
+                h_m: s.pos.h_m,
+                hp_m: s.hp_m,
+                tas_mps: s.air.tas_mps,
+                bank_deg: e.z,
+                pitch_deg: e.y,
+            });
+        }
+        self.samples_seen += 1;
+    }
+
+    fn operation_started(&mut self, t_s: f64, index: usize, operation: &Operation) {
+        self.operations.push((t_s, index, *operation));
+    }
+}

@@ -1,0 +1,141 @@
+//! The `ianav-sim` command line: a short flight writes its outputs; bad arguments and bad
+//! configuration files exit non-zero with a message naming the offending field, never a panic.
+
+#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn ianav_sim(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_ianav-sim"))
+        .args(args)
+        .output()
+        .unwrap()
+}
+
+fn temp_dir(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("ianav-cli-{}-{name}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn assert_clean_failure(out: &Output, needle: &str) {
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "should fail: {stderr}");
+    assert!(
+        stderr.contains(needle),
+        "stderr should name `{needle}`: {stderr}"
+    );
+    assert!(!stderr.contains("panicked"), "must not panic: {stderr}");
+}
+
+#[test]
+fn run_writes_report_trajectory_sensors_and_plots() {
+    let dir = temp_dir("run");
+    let out_dir = dir.join("out");
+    let out = ianav_sim(&[
+        "run",
+        "--scenario",
+        "2",
+        "--seed",
+        "3",
+        "--duration",
+        "20",
+        "--out",
+        out_dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    for file in [
+        "report.md",
+        "truth.csv",
+        "sensors.bin",
+        "summary.toml",
+        "ground_track.png",
+        "altitude.png",
+        "airspeed.png",
+        "attitude.png",
+    ] {
+        assert!(out_dir.join(file).is_file(), "missing {file}");
+    }
+    // 70 s of flight (50 s warm-up + 20 s) at 10 Hz, plus the header.
+    let rows = std::fs::read_to_string(out_dir.join("truth.csv"))
+        .unwrap()
+        .lines()
+        .count();
+    assert_eq!(rows, 1 + 700);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_arguments_are_refused() {
+    let out = ianav_sim(&["run", "--scenario", "3", "--out", "/tmp/never"]);
+    assert_clean_failure(&out, "--scenario");
+    let out = ianav_sim(&[
+        "run",
+        "--scenario",
+        "2",
+        "--duration=-5",
+        "--out",
+        "/tmp/never",
+    ]);
+    assert_clean_failure(&out, "--duration");
+    let out = ianav_sim(&[
+        "run",
+        "--scenario",
+        "2",
+        "--turbulence",
+        "nan",
+        "--out",
+        "/tmp/never",
+    ]);
+    assert_clean_failure(&out, "--turbulence");
+}
+
+#[test]
+fn bad_configuration_files_name_the_field() {
+    let dir = temp_dir("config");
+    let repo_config = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../config");
+    let cases = [
+        (
+            "sensors.toml",
+            "imu_period_s = 0.01",
+            "imu_period_s = -0.01",
+            "imu_period_s",
+        ),
+        (
+            "sensors.toml",
+            "imu_period_s = 0.01",
+            "imu_period_s = 0.01\nmystery = 3",
+            "mystery",
+        ),
+        (
+            "scenarios/scenario2.toml",
+            "warmup_s = 50.0",
+            "warmup_s = \"long\"",
+            "warmup_s",
+        ),
+    ];
+    for (file, from, to, needle) in cases {
+        let case_dir = dir.join(needle);
+        std::fs::create_dir_all(case_dir.join("scenarios")).unwrap();
+        let text = std::fs::read_to_string(repo_config.join(file)).unwrap();
+        assert!(text.contains(from), "{file} should contain `{from}`");
+        std::fs::write(case_dir.join(file), text.replacen(from, to, 1)).unwrap();
+        let out = ianav_sim(&[
+            "run",
+            "--scenario",
+            "2",
+            "--config-dir",
+            case_dir.to_str().unwrap(),
+            "--out",
+            dir.join("never").to_str().unwrap(),
+        ]);
+        assert_clean_failure(&out, needle);
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
