@@ -22,6 +22,7 @@ fn bench_aircraft(c: &mut Criterion) {
         rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
         wind_ned_mps: Vector3::zeros(),
         turb_b_mps: Vector3::zeros(),
+        turb_rate_b_rps: Vector3::zeros(),
     };
     let Ok(trim) = ac.trim(29.0, 0.0, &still, 19.5) else {
         return;

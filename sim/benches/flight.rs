@@ -14,7 +14,9 @@ fn one_second_of_flight(c: &mut Criterion) {
             || Flight::new(&setup, 1).expect("flight set-up"),
             |mut flight| {
                 for _ in 0..500 {
-                    flight.step(&mut NoObserver);
+                    flight
+                        .step(&mut NoObserver)
+                        .expect("flight stays in the envelope");
                 }
                 black_box(flight.truth().pos)
             },

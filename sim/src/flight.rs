@@ -17,7 +17,8 @@ use crate::aircraft::{
 };
 use crate::control::{ControlConfig, Controller, Guidance, Navigation, Operation, TruthNavigation};
 use crate::env::{
-    TrueGravity, TrueMagneticField, Turbulence, TurbulenceConfig, WeatherOffsets, WindField,
+    DrydenParams, TrueGravity, TrueMagneticField, Turbulence, TurbulenceConfig, WeatherOffsets,
+    WindField,
 };
 use crate::rng;
 use crate::scenario::{Mission, ScenarioConfig};
@@ -44,7 +45,35 @@ pub enum FlightError {
     /// The aircraft cannot trim at the initial conditions.
     #[error("initial trim: {0}")]
     Trim(String),
+    /// The scenario configuration is invalid.
+    #[error(transparent)]
+    Scenario(#[from] crate::scenario::ScenarioError),
+    /// The aircraft parameters are invalid.
+    #[error("aircraft: {0}")]
+    Aircraft(#[from] crate::aircraft::AircraftError),
+    /// The sensor configuration is invalid.
+    #[error("sensors: {0}")]
+    Sensors(#[from] crate::sensors::SensorConfigError),
+    /// The control configuration is invalid.
+    #[error("control: {0}")]
+    Control(#[from] crate::control::ControlConfigError),
+    /// The aircraft left the physical envelope (non-finite state, below sea level, stalled
+    /// far below the minimum airspeed or overspeeding): the models are no longer valid.
+    #[error("flight departed at mission time {t_s:.2} s: {reason}")]
+    Departed {
+        /// Mission time, s.
+        t_s: f64,
+        /// What left the envelope.
+        reason: String,
+    },
 }
+
+/// Envelope outside which a flight is declared departed: the aerodynamic model holds up to
+/// the stall and the atmosphere model well above these altitudes.
+const MIN_TAS_MPS: f64 = 10.0;
+const MAX_TAS_MPS: f64 = 80.0;
+const MIN_H_M: f64 = -500.0;
+const MAX_H_M: f64 = 15_000.0;
 
 /// Discrete rates of the simulation (paper table "Working frequencies"); the sensor and GNSS
 /// periods come from the sensor configuration, the control period from the control one.
@@ -84,6 +113,15 @@ pub struct FlightSetup {
 }
 
 impl FlightSetup {
+    /// Validate every part; errors name the offending key.
+    pub fn validate(&self) -> Result<(), FlightError> {
+        self.scenario.validate()?;
+        self.aircraft.validate()?;
+        self.sensors.validate()?;
+        self.control.validate()?;
+        Ok(())
+    }
+
     /// The built-in scenario `number` with the default aircraft, sensors and control.
     pub fn builtin(number: u8) -> Result<Self, crate::scenario::ScenarioError> {
         Ok(Self {
@@ -100,6 +138,8 @@ impl FlightSetup {
 /// Truth at the output rate: what the trajectory file holds.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct TruthSample {
+    /// Simulation time since the start of the warm-up (the sensor clock), microseconds.
+    pub t_us: u64,
     /// Mission time, s (negative during the warm-up).
     pub t_s: f64,
     /// Position of the CG.
@@ -118,6 +158,8 @@ pub struct TruthSample {
     pub wind_ned_mps: Vector3<f64>,
     /// Turbulence, body axes, m/s.
     pub turb_b_mps: Vector3<f64>,
+    /// Rotational turbulence (angular velocity of the air), body axes, rad/s.
+    pub turb_rate_b_rps: Vector3<f64>,
     /// Atmosphere offsets.
     pub offsets: AtmosphereOffsets,
     /// Control surface and throttle positions.
@@ -152,6 +194,11 @@ pub struct FlightSummary {
     pub seed: u64,
     /// Scenario name.
     pub scenario: String,
+    /// Warm-up flown before mission time 0, s: sensor times `t_us` count from the start of
+    /// the warm-up, so mission time = `t_us`·1e-6 − `warmup_s`.
+    pub warmup_s: f64,
+    /// Mission time of the last GNSS fix, s.
+    pub gnss_loss_s: f64,
     /// Mission time flown after the warm-up, s.
     pub duration_s: f64,
     /// Ground distance flown from mission time 0, m.
@@ -254,6 +301,7 @@ impl Flight {
     /// the initial airspeed and pressure altitude, heading so that the ground track has the
     /// initial bearing.
     pub fn new(setup: &FlightSetup, seed: u64) -> Result<Self, FlightError> {
+        setup.validate()?;
         let scn = &setup.scenario;
         let rates = setup.rates;
         let step_s = rates.truth_step_s;
@@ -279,10 +327,11 @@ impl Flight {
         };
         let weather = WeatherOffsets::draw(&scn.offsets, &mut rng::stream(seed, "offsets"));
         let wind = WindField::draw(&scn.wind, &mut rng::stream(seed, "wind"));
-        let turbulence = Turbulence::new(
+        let turbulence = Turbulence::with_params(
             &TurbulenceConfig {
                 factor: scn.turbulence_factor,
             },
+            DrydenParams::default().with_span(setup.aircraft.aero.wing_span_m),
             rng::stream(seed, "turbulence"),
         );
         let mut geo_rng = rng::stream(seed, "geophysics");
@@ -305,6 +354,7 @@ impl Flight {
             rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
             wind_ned_mps: Vector3::zeros(),
             turb_b_mps: Vector3::zeros(),
+            turb_rate_b_rps: Vector3::zeros(),
         };
         let mass_kg = setup.aircraft.initial_mass_kg;
         let trim = aircraft
@@ -437,6 +487,7 @@ impl Flight {
     /// Truth at the current instant.
     pub fn truth_sample(&self) -> TruthSample {
         TruthSample {
+            t_us: self.t_us(),
             t_s: self.mission_time_s(),
             pos: self.x.pos,
             v_ned_mps: self.x.q_nb * self.x.v_b_mps,
@@ -446,6 +497,7 @@ impl Flight {
             hp_m: self.hp_m,
             wind_ned_mps: self.air.wind_ned_mps,
             turb_b_mps: self.air.turb_b_mps,
+            turb_rate_b_rps: self.air.turb_rate_b_rps,
             offsets: self.offsets,
             controls: self.actuators.position(),
             distance_m: self.distance_m,
@@ -454,8 +506,37 @@ impl Flight {
         }
     }
 
-    /// Advance one truth step.
-    pub fn step(&mut self, observer: &mut impl FlightObserver) {
+    /// Error if the aircraft left the envelope in which the models hold.
+    fn check_envelope(&self) -> Result<(), FlightError> {
+        let x = &self.x;
+        let finite = x.pos.lat_rad.is_finite()
+            && x.pos.lon_rad.is_finite()
+            && x.v_b_mps
+                .iter()
+                .chain(x.w_ib_b_rps.iter())
+                .all(|v| v.is_finite())
+            && x.q_nb.coords.iter().all(|v| v.is_finite());
+        let tas_mps = air_relative(x, &self.air).tas_mps;
+        let reason = if !finite {
+            "non-finite state".to_owned()
+        } else if !(MIN_H_M..=MAX_H_M).contains(&x.pos.h_m) {
+            format!(
+                "altitude {:.0} m outside [{MIN_H_M}, {MAX_H_M}] m",
+                x.pos.h_m
+            )
+        } else if !(MIN_TAS_MPS..=MAX_TAS_MPS).contains(&tas_mps) {
+            format!("airspeed {tas_mps:.1} m/s outside [{MIN_TAS_MPS}, {MAX_TAS_MPS}] m/s")
+        } else {
+            return Ok(());
+        };
+        Err(FlightError::Departed {
+            t_s: self.mission_time_s(),
+            reason,
+        })
+    }
+
+    /// Advance one truth step; an error means the flight departed and must stop.
+    pub fn step(&mut self, observer: &mut impl FlightObserver) -> Result<(), FlightError> {
         let k = self.step_index;
         let t_mission_s = self.mission_time_s();
         if k.is_multiple_of(self.steps_per_control) {
@@ -482,6 +563,7 @@ impl Flight {
             rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
             wind_ned_mps: self.wind.at(t_mission_s),
             turb_b_mps: self.turbulence.step(dt_s, tas_prev, self.x.pos.h_m),
+            turb_rate_b_rps: self.turbulence.rate_b_rps(),
         };
         let gravity = self.gravity.gravity_ned_mps2(&self.x.pos);
         let v_before = self.x.q_nb * self.x.v_b_mps;
@@ -489,6 +571,7 @@ impl Flight {
             .aircraft
             .step(&self.x, &position, &self.air, &gravity, dt_s);
         self.step_index += 1;
+        self.check_envelope()?;
 
         if self.t_us() > self.warmup_us {
             // Trapezoidal integral of the horizontal ground speed (2nd order in the step).
@@ -512,6 +595,7 @@ impl Flight {
         if k.is_multiple_of(self.steps_per_output) {
             observer.truth_sample(&self.truth_sample());
         }
+        Ok(())
     }
 
     fn record_operation(&mut self, t_s: f64, index: usize, observer: &mut impl FlightObserver) {
@@ -573,19 +657,20 @@ impl Flight {
     }
 
     /// Fly to the end of the mission, reporting progress (mission seconds) to `progress`.
+    /// Stops with [`FlightError::Departed`] if the aircraft leaves the envelope.
     pub fn run(
         &mut self,
         observer: &mut impl FlightObserver,
         mut progress: impl FnMut(f64),
-    ) -> FlightSummary {
+    ) -> Result<FlightSummary, FlightError> {
         let report_every = self.steps_per_output * 10;
         while !self.finished() {
-            self.step(observer);
+            self.step(observer)?;
             if self.step_index.is_multiple_of(report_every) {
                 progress(self.mission_time_s());
             }
         }
-        self.summary()
+        Ok(self.summary())
     }
 
     /// Summary of the flight so far.
@@ -593,6 +678,8 @@ impl Flight {
         FlightSummary {
             seed: self.seed,
             scenario: self.scenario_name.clone(),
+            warmup_s: self.warmup_us as f64 * 1e-6,
+            gnss_loss_s: (self.gnss_loss_us - self.warmup_us) as f64 * 1e-6,
             duration_s: self.mission_time_s().max(0.0),
             distance_m: self.distance_m,
             operations: self.operations.clone(),
@@ -602,5 +689,37 @@ impl Flight {
             h_range_m: self.h_range_m,
             fuel_burnt_kg: self.initial_mass_kg - self.x.mass_kg,
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn invalid_setups_are_refused_with_the_key() {
+        let mut setup = FlightSetup::builtin(2).unwrap();
+        setup.aircraft.actuators.elevator_travel_deg = -1.0;
+        let err = Flight::new(&setup, 1).err().unwrap().to_string();
+        assert!(err.contains("elevator_travel_deg"), "{err}");
+        let mut setup = FlightSetup::builtin(2).unwrap();
+        setup.sensors.imu_period_s = 0.003; // not a multiple of the 2 ms step
+        let err = Flight::new(&setup, 1).err().unwrap().to_string();
+        assert!(err.contains("imu_period_s"), "{err}");
+    }
+
+    #[test]
+    fn a_departed_flight_stops_with_an_error() {
+        let setup = FlightSetup::builtin(2).unwrap();
+        let mut flight = Flight::new(&setup, 1).unwrap();
+        for _ in 0..10 {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        flight.x.pos.h_m = -1_000.0;
+        let err = flight.step(&mut NoObserver).unwrap_err();
+        assert!(matches!(err, FlightError::Departed { .. }), "{err}");
+        let mut flight = Flight::new(&setup, 1).unwrap();
+        flight.x.v_b_mps.x = f64::NAN;
+        assert!(flight.run(&mut NoObserver, |_| {}).is_err());
     }
 }

@@ -124,7 +124,7 @@ fn run(fly: &FlyArgs, out: &std::path::Path, no_sensor_log: bool) -> Result<()> 
     );
     bar.set_message(format!("scenario {} seed {}", fly.scenario, fly.seed));
     let started = Instant::now();
-    let summary = flight.run(&mut writer, |t_s| bar.set_position(t_s.max(0.0) as u64));
+    let summary = flight.run(&mut writer, |t_s| bar.set_position(t_s.max(0.0) as u64))?;
     bar.finish();
     let report = writer.finish(&summary)?;
     println!(
@@ -164,7 +164,7 @@ fn bench(fly: &FlyArgs) -> Result<()> {
             marks.push((t_s, memory_kb()));
             next_mark += end_s / 4.0;
         }
-    });
+    })?;
     let wall_s = started.elapsed().as_secs_f64();
     println!(
         "scenario {} seed {}: {:.0} s simulated ({} steps at 500 Hz, physics + environment + sensors + control)",

@@ -46,7 +46,7 @@ pub mod files {
     pub const REPORT: &str = "report.md";
 }
 
-const TRUTH_HEADER: &str = "t_s,lat_deg,lon_deg,h_m,hp_m,v_n_mps,v_e_mps,v_d_mps,yaw_deg,pitch_deg,\
+const TRUTH_HEADER: &str = "t_us,t_s,lat_deg,lon_deg,h_m,hp_m,v_n_mps,v_e_mps,v_d_mps,yaw_deg,pitch_deg,\
 bank_deg,tas_mps,aoa_deg,aos_deg,wind_n_mps,wind_e_mps,wind_d_mps,turb_x_mps,turb_y_mps,\
 turb_z_mps,delta_t_k,delta_p_pa,throttle,elevator_deg,aileron_deg,rudder_deg,mass_kg,\
 distance_m,operation";
@@ -250,12 +250,11 @@ impl RunWriter {
             s.h_range_m[0], s.h_range_m[1]
         );
         let _ = writeln!(r, "| fuel burnt | {:.3} kg |", s.fuel_burnt_kg);
+        let _ = writeln!(r, "| final position | {} |", format_position(&s.final_pos));
         let _ = writeln!(
             r,
-            "| final position | {:.5}° N, {:.5}° E, {:.0} m |",
-            s.final_pos.lat_rad.to_degrees(),
-            s.final_pos.lon_rad.to_degrees(),
-            s.final_pos.h_m
+            "| time bases | sensor `t_us` from the warm-up start; mission time = t_us·1e-6 − {:.0} s; last GNSS fix at {:.0} s |",
+            s.warmup_s, s.gnss_loss_s
         );
         let _ = writeln!(r, "| sensor samples | {} |", s.sensor_events);
         let _ = writeln!(r, "| integration steps | {} |\n", s.truth_steps);
@@ -287,6 +286,20 @@ impl RunWriter {
         );
         r
     }
+}
+
+/// `45.06352° N, 89.95502° W, 2794 m`.
+fn format_position(pos: &Geodetic) -> String {
+    let (lat, lon) = (pos.lat_rad.to_degrees(), pos.lon_rad.to_degrees());
+    let lon = (lon + 180.0).rem_euclid(360.0) - 180.0;
+    let ns = if lat >= 0.0 { 'N' } else { 'S' };
+    let ew = if lon >= 0.0 { 'E' } else { 'W' };
+    format!(
+        "{:.5}° {ns}, {:.5}° {ew}, {:.0} m",
+        lat.abs(),
+        lon.abs(),
+        pos.h_m
+    )
 }
 
 fn describe_elevator(op: &Operation) -> String {
@@ -331,8 +344,9 @@ impl FlightObserver for RunWriter {
         self.line.clear();
         let _ = write!(
             self.line,
-            "{:.3},{:.9},{:.9},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},\
+            "{},{:.3},{:.9},{:.9},{:.3},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},\
              {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.4},{:.4},{:.4},{:.4},{:.5},{:.2},{}",
+            s.t_us,
             s.t_s,
             s.pos.lat_rad.to_degrees(),
             s.pos.lon_rad.to_degrees(),

@@ -1,6 +1,8 @@
 //! Seeded random streams: every stochastic component draws from its own stream derived from
 //! `(run seed, component name)`, so adding a component never changes another one's draws,
-//! and the same seed gives the same flight bit for bit on every platform.
+//! and the same seed gives the same flight bit for bit (on a given platform and maths
+//! library: the streams themselves are portable, but `sin`, `exp` and friends come from the
+//! system's libm).
 
 use rand::SeedableRng;
 use rand_chacha::ChaCha12Rng;

@@ -181,61 +181,167 @@ impl ScenarioConfig {
         }
     }
 
-    /// Check ranges; the error names the offending key.
+    /// Check ranges; the error names the offending key. The bounds keep every redraw loop of
+    /// the mission, offsets and wind draws feasible (acceptance probability per draw well
+    /// above 1 %), and keep the flight inside the aircraft's envelope and the models' domain.
     pub fn validate(&self) -> Result<(), ScenarioError> {
-        let bad = |field: &'static str, reason: &str| {
-            Err(ScenarioError::Invalid {
-                field,
-                reason: reason.to_owned(),
-            })
-        };
-        let positive = [
-            ("duration_s", self.duration_s),
-            ("draws.airspeed_min_mps", self.draws.airspeed_min_mps),
-            ("draws.hp_mean_m", self.draws.hp_mean_m),
-            ("draws.turn_bank_deg", self.draws.turn_bank_deg),
-        ];
-        for (field, value) in positive {
-            if !(value.is_finite() && value > 0.0) {
-                return bad(field, &format!("must be a positive number, got {value}"));
-            }
-        }
-        let non_negative = [
-            ("warmup_s", self.warmup_s),
-            ("gnss_loss_s", self.gnss_loss_s),
-            ("turbulence_factor", self.turbulence_factor),
-        ];
-        for (field, value) in non_negative {
-            if !(value.is_finite() && value >= 0.0) {
-                return bad(
-                    field,
-                    &format!("must be a non-negative number, got {value}"),
-                );
-            }
-        }
-        if !(-90.0..=90.0).contains(&self.start.lat_deg) {
-            return bad("start.lat_deg", "must lie in [-90, 90]");
-        }
-        if !(-180.0..=360.0).contains(&self.start.lon_deg) {
-            return bad("start.lon_deg", "must lie in [-180, 360]");
-        }
-        if self.draws.airspeed_max_mps <= self.draws.airspeed_min_mps {
-            return bad(
-                "draws.airspeed_max_mps",
-                "must exceed draws.airspeed_min_mps",
-            );
-        }
-        if self.draws.alternate_leg_max_s < self.draws.alternate_leg_min_s {
-            return bad(
-                "draws.alternate_leg_max_s",
-                "must not be below alternate_leg_min_s",
-            );
-        }
-        if !(2025.0..2030.0).contains(&self.magnetic_decimal_year) {
-            return bad(
+        let d = &self.draws;
+        let (o, w) = (&self.offsets, &self.wind);
+        // (key, value, lowest, highest), both inclusive.
+        let ranges: &[(&'static str, f64, f64, f64)] = &[
+            ("duration_s", self.duration_s, 1e-3, 100_000.0),
+            ("warmup_s", self.warmup_s, 0.0, 3_600.0),
+            ("gnss_loss_s", self.gnss_loss_s, 0.0, 100_000.0),
+            ("turbulence_factor", self.turbulence_factor, 0.0, 5.0),
+            (
                 "magnetic_decimal_year",
-                "must lie within WMM2025 (2025.0 to 2030.0)",
-            );
+                self.magnetic_decimal_year,
+                2025.0,
+                2029.99,
+            ),
+            ("start.lat_deg", self.start.lat_deg, -89.0, 89.0),
+            ("start.lon_deg", self.start.lon_deg, -180.0, 360.0),
+            ("draws.airspeed_min_mps", d.airspeed_min_mps, 20.0, 40.0),
+            (
+                "draws.airspeed_max_mps",
+                d.airspeed_max_mps,
+                d.airspeed_min_mps + 1.0,
+                40.0,
+            ),
+            (
+                "draws.airspeed_mean_mps",
+                d.airspeed_mean_mps,
+                d.airspeed_min_mps,
+                d.airspeed_max_mps,
+            ),
+            ("draws.airspeed_sigma_mps", d.airspeed_sigma_mps, 0.1, 10.0),
+            (
+                "draws.airspeed_change_min_mps",
+                d.airspeed_change_min_mps,
+                0.0,
+                5.0,
+            ),
+            ("draws.hp_mean_m", d.hp_mean_m, 500.0, 5_000.0),
+            ("draws.hp_sigma_m", d.hp_sigma_m, 0.0, 1_000.0),
+            ("draws.hp_change_sigma_m", d.hp_change_sigma_m, 1.0, 1_500.0),
+            ("draws.hp_change_min_m", d.hp_change_min_m, 0.0, 1_000.0),
+            (
+                "draws.climb_path_angle_deg",
+                d.climb_path_angle_deg,
+                0.5,
+                5.0,
+            ),
+            ("draws.turn_bank_deg", d.turn_bank_deg, 2.0, 30.0),
+            ("draws.turn_lead_deg", d.turn_lead_deg, 0.0, 30.0),
+            (
+                "draws.bearing_change_min_deg",
+                d.bearing_change_min_deg,
+                0.0,
+                150.0,
+            ),
+            ("draws.phase_mean_s", d.phase_mean_s, 0.0, 100_000.0),
+            ("draws.phase_sigma_s", d.phase_sigma_s, 1.0, 100_000.0),
+            (
+                "draws.phase_min_s",
+                d.phase_min_s,
+                0.0,
+                d.phase_mean_s + 2.0 * d.phase_sigma_s,
+            ),
+            (
+                "draws.phases_max_sum_s",
+                d.phases_max_sum_s,
+                2.0 * d.phase_mean_s,
+                200_000.0,
+            ),
+            (
+                "draws.turn_delay_mean_s",
+                d.turn_delay_mean_s,
+                0.0,
+                100_000.0,
+            ),
+            (
+                "draws.turn_delay_sigma_s",
+                d.turn_delay_sigma_s,
+                1.0,
+                100_000.0,
+            ),
+            (
+                "draws.turn_delay_min_s",
+                d.turn_delay_min_s,
+                0.0,
+                d.turn_delay_mean_s + 2.0 * d.turn_delay_sigma_s,
+            ),
+            (
+                "draws.alternate_turns",
+                d.alternate_turns as f64,
+                1.0,
+                100.0,
+            ),
+            (
+                "draws.alternate_leg_min_s",
+                d.alternate_leg_min_s as f64,
+                1.0,
+                10_000.0,
+            ),
+            (
+                "draws.alternate_leg_max_s",
+                d.alternate_leg_max_s as f64,
+                d.alternate_leg_min_s as f64,
+                10_000.0,
+            ),
+            ("offsets.mean_start_s", o.mean_start_s, 0.0, 100_000.0),
+            ("offsets.duration_s", o.duration_s, 0.0, 100_000.0),
+            ("offsets.sigma_time_s", o.sigma_time_s, 0.0, 100_000.0),
+            (
+                "offsets.min_start_s",
+                o.min_start_s,
+                0.0,
+                o.mean_start_s + 2.0 * o.sigma_time_s,
+            ),
+            ("offsets.sigma_delta_t_k", o.sigma_delta_t_k, 0.0, 20.0),
+            (
+                "offsets.sigma_delta_t_change_k",
+                o.sigma_delta_t_change_k,
+                0.0,
+                20.0,
+            ),
+            ("offsets.sigma_delta_p_pa", o.sigma_delta_p_pa, 0.0, 3_000.0),
+            (
+                "offsets.sigma_delta_p_change_pa",
+                o.sigma_delta_p_change_pa,
+                0.0,
+                3_000.0,
+            ),
+            ("wind.mean_start_s", w.mean_start_s, 0.0, 100_000.0),
+            ("wind.sigma_time_s", w.sigma_time_s, 0.0, 100_000.0),
+            (
+                "wind.min_start_s",
+                w.min_start_s,
+                0.0,
+                w.mean_start_s + 2.0 * w.sigma_time_s,
+            ),
+            ("wind.sigma_speed_mps", w.sigma_speed_mps, 0.0, 15.0),
+            (
+                "wind.sigma_speed_change_mps",
+                w.sigma_speed_change_mps,
+                0.0,
+                10.0,
+            ),
+            ("wind.duration_s", w.duration_s, 0.0, 100_000.0),
+            (
+                "wind.sigma_direction_change_deg",
+                w.sigma_direction_change_deg,
+                0.0,
+                180.0,
+            ),
+        ];
+        for &(field, value, lo, hi) in ranges {
+            if !(value.is_finite() && (lo..=hi).contains(&value)) {
+                return Err(ScenarioError::Invalid {
+                    field,
+                    reason: format!("must lie in [{lo}, {hi}], got {value}"),
+                });
+            }
         }
         Ok(())
     }
@@ -459,6 +565,16 @@ mod tests {
         )
         .unwrap_err();
         assert!(err.to_string().contains("turbulence_factor"), "{err}");
+        let err = ScenarioConfig::from_toml_str(
+            &text.replace("sigma_speed_mps = 7.0", "sigma_speed_mps = 1e5"),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("wind.sigma_speed_mps"), "{err}");
+        let err = ScenarioConfig::from_toml_str(
+            &text.replace("duration_s = 500.0", "duration_s = 1e300"),
+        )
+        .unwrap_err();
+        assert!(err.to_string().contains("`duration_s`"), "{err}");
     }
 
     #[test]

@@ -23,6 +23,7 @@ fn isa(hp_m: f64) -> AirInputs {
         rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
         wind_ned_mps: Vector3::zeros(),
         turb_b_mps: Vector3::zeros(),
+        turb_rate_b_rps: Vector3::zeros(),
     }
 }
 

@@ -75,7 +75,7 @@ fn fly(
     });
     let mut flight = Flight::new(&setup, 7).unwrap();
     let mut rec = Recorder::default();
-    flight.run(&mut rec, |_| {});
+    flight.run(&mut rec, |_| {}).unwrap();
     rec.0
 }
 
@@ -241,7 +241,13 @@ fn control_turbulence_moves_the_aircraft_by_degrees_not_tens() {
     println!(
         "turbulence 0.5: std bank {xs:.3} deg, pitch {ts:.3} deg, airspeed {vs:.3} m/s, Hp {hs:.2} m [{hmin:.1}, {hmax:.1}], bearing {cs:.3} deg [{cmin:.2}, {cmax:.2}], sideslip {bs:.3} deg"
     );
-    assert!(xs > 0.01 && xs < 5.0, "bank std {xs}");
+    // Bank: the roll gust p_g (σ ≈ 0.11 rad/s at factor 0.5, first order with V/(4b/π) ≈
+    // 8.5 rad/s, docs/ENVIRONMENT.md) through roll damping (roll mode 11.5 /s) against the bank
+    // loop (L_δa·kp ≈ 144 rad²/s², damping 11.5 + L_δa·kd ≈ 16 /s) gives σ_ξ ≈ 0.40° in the
+    // linear continuous model; sampling, actuator lag and the lateral gusts only add to it, so
+    // 0.3° (≈ 3/4 of that) is a floor that fails if the rotational gusts stop reaching the
+    // aerodynamics, and 5° a ceiling that fails if they destabilise the loop.
+    assert!(xs > 0.3 && xs < 5.0, "bank std {xs}");
     assert!(ts > 0.5 && ts < 6.0, "pitch std {ts}");
     assert!(vs > 0.1 && vs < 2.0, "airspeed std {vs}");
     assert!(hmin > -30.0 && hmax < 30.0, "altitude [{hmin}, {hmax}]");
@@ -298,6 +304,7 @@ fn air_at(hp_m: f64) -> AirInputs {
         rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
         wind_ned_mps: Vector3::zeros(),
         turb_b_mps: Vector3::zeros(),
+        turb_rate_b_rps: Vector3::zeros(),
     }
 }
 
@@ -426,6 +433,7 @@ impl Harness {
             if let Some(turb) = self.turbulence.as_mut() {
                 let tas = air_relative(&self.x, &self.air).tas_mps;
                 self.air.turb_b_mps = turb.step(DT_S, tas, self.x.pos.h_m);
+                self.air.turb_rate_b_rps = turb.rate_b_rps();
             }
             let g = wgs84::normal_gravity_mps2(self.x.pos.lat_rad, self.x.pos.h_m);
             self.x = self.aircraft.step(
@@ -444,6 +452,7 @@ impl Harness {
         );
         self.air = AirInputs {
             turb_b_mps: self.air.turb_b_mps,
+            turb_rate_b_rps: self.air.turb_rate_b_rps,
             ..air_at(self.hp_m)
         };
         s

@@ -10,10 +10,18 @@
 //! here by quadrature of the model spectra. Bounds are 4.5 standard errors plus a small
 //! allowance for the discretisation bias (finite differences at Δt: relative bias of the
 //! acceleration variance ≈ (V/L + V/ℓ)·Δt/3 ≤ 0.3 %; trapezoidal filters ≤ 1e-5).
+//!
+//! Rotational gusts (same series): σ of `p_g` against the MIL-F-8785C closed form, σ of `q_g`
+//! and `r_g` against the closed-form variance of the lagged slope of the rolled-off field (both
+//! independent of the airspeed: frozen field), their signs and lag through the correlation with
+//! the finite-difference gust acceleration, and the independence of `p_g` from `w_g`. The
+//! discrete `p_g` is an exact OU step; `q_g`, `r_g` are the exact lag of the slope of the
+//! linearly interpolated samples, whose error averages out over each step (relative error
+//! ≈ (Δs/λ)·√(3Δs/(Lℓ²))/σ_slope ≈ 1e-3 in amplitude at 500 Hz, uncorrelated with the signal).
 
 use ianav_sim::env::turbulence::{
     CALIBRATION_ACCEL_VAR_X, CALIBRATION_ACCEL_VAR_YZ, CALIBRATION_H_M, CALIBRATION_TAS_MPS,
-    DrydenParams, Severity,
+    DrydenParams, Severity, lagged_slope_variance_vw, roll_rate_sigma_per_intensity,
 };
 use ianav_sim::env::{Turbulence, TurbulenceConfig};
 use ianav_sim::rng::stream;
@@ -30,36 +38,53 @@ struct Stats {
     sd_v: Vector3<f64>,
     mean_a: Vector3<f64>,
     sd_a: Vector3<f64>,
+    /// Rotational gust (p, q, r): mean and σ, rad/s.
+    mean_w: Vector3<f64>,
+    sd_w: Vector3<f64>,
+    /// Correlation coefficients (p_g, w_g), (q_g, a_w), (r_g, a_v).
+    corr_pw: f64,
+    corr_qa: f64,
+    corr_ra: f64,
 }
 
 fn run(factor: f64, dt_s: f64, tas_mps: f64, duration_s: f64, seed: u64) -> Stats {
     let mut t = Turbulence::new(&TurbulenceConfig { factor }, stream(seed, "turbulence"));
     let n = (duration_s / dt_s).round() as usize;
     let mut prev = t.velocity_b_mps();
-    let (mut s1, mut s2, mut a1, mut a2) = (
-        Vector3::zeros(),
-        Vector3::zeros(),
-        Vector3::<f64>::zeros(),
-        Vector3::<f64>::zeros(),
-    );
+    let z = Vector3::<f64>::zeros;
+    let (mut s1, mut s2, mut a1, mut a2, mut w1, mut w2) = (z(), z(), z(), z(), z(), z());
+    // Cross sums p·w, q·a_z, r·a_y.
+    let mut x12 = z();
     for _ in 0..n {
         let v = t.step(dt_s, tas_mps, CALIBRATION_H_M);
+        let w = t.rate_b_rps();
         let a = (v - prev) / dt_s;
         prev = v;
         s1 += v;
         s2 += v.component_mul(&v);
         a1 += a;
         a2 += a.component_mul(&a);
+        w1 += w;
+        w2 += w.component_mul(&w);
+        x12 += Vector3::new(w.x * v.z, w.y * a.z, w.z * a.y);
     }
     let nf = n as f64;
     let sd = |s1: Vector3<f64>, s2: Vector3<f64>| {
         (s2 / nf - (s1 / nf).component_mul(&(s1 / nf))).map(f64::sqrt)
     };
+    let (sd_v, sd_a, sd_w) = (sd(s1, s2), sd(a1, a2), sd(w1, w2));
+    let (mv, ma, mw) = (s1 / nf, a1 / nf, w1 / nf);
+    let corr = |sxy: f64, mx: f64, my: f64, sx: f64, sy: f64| (sxy / nf - mx * my) / (sx * sy);
     Stats {
-        mean_v: s1 / nf,
-        sd_v: sd(s1, s2),
-        mean_a: a1 / nf,
-        sd_a: sd(a1, a2),
+        mean_v: mv,
+        sd_v,
+        mean_a: ma,
+        sd_a,
+        mean_w: mw,
+        sd_w,
+        corr_pw: corr(x12.x, mw.x, mv.z, sd_w.x, sd_v.z),
+        corr_qa: corr(x12.y, mw.y, ma.z, sd_w.y, sd_a.z),
+        corr_ra: corr(x12.z, mw.z, ma.y, sd_w.z, sd_a.y),
     }
 }
 
@@ -129,6 +154,88 @@ fn standard_errors(v: f64, duration_s: f64) -> [[f64; 3]; 3] {
     out
 }
 
+/// Closed-form σ of (p_g, q_g, r_g) per unit intensity, 1/m (rad/s per m/s), and the
+/// correlations of q_g with −a_w/V and of r_g with +a_v/V that the lag `1/(1 + λD)` implies:
+/// `√(var(lagged slope)/var(slope))`.
+fn rate_model(p: &DrydenParams) -> (Vector3<f64>, f64, f64) {
+    let (l, ell) = (p.scale_length_vw_m, p.rolloff_length_yz_m);
+    let vq = lagged_slope_variance_vw(l, ell, p.roll_pitch_length_m());
+    let vr = lagged_slope_variance_vw(l, ell, p.yaw_length_m());
+    let vd = derivative_variance(l, ell);
+    (
+        Vector3::new(
+            roll_rate_sigma_per_intensity(l, p.span_m),
+            vq.sqrt(),
+            vr.sqrt(),
+        ),
+        (vq / vd).sqrt(),
+        (vr / vd).sqrt(),
+    )
+}
+
+/// Slope variance of the rolled-off v/w per unit variance (the λ → 0 limit of the lag).
+fn derivative_variance(l: f64, ell: f64) -> f64 {
+    ianav_sim::env::turbulence::derivative_variance_vw(l, ell)
+}
+
+/// Relative standard errors of σ̂ for (p, q, r) over `duration_s` at airspeed `v`, from the
+/// model spectra (p: first-order of length λ_p; q, r: Ω²·S_v/(1 + λ²Ω²)).
+fn rate_standard_errors(v: f64, duration_s: f64) -> Vector3<f64> {
+    let p = DrydenParams::default();
+    let [_, sv] = spectra(&p);
+    let lp = p.roll_pitch_length_m();
+    let ly = p.yaw_length_m();
+    let (_, t2p) = time_scales(&|o| 1.0 / (1.0 + (lp * o).powi(2)), lp, v);
+    let (_, t2q) = time_scales(&|o| o * o * sv(o) / (1.0 + (lp * o).powi(2)), lp, v);
+    let (_, t2r) = time_scales(&|o| o * o * sv(o) / (1.0 + (ly * o).powi(2)), ly, v);
+    Vector3::new(t2p, t2q, t2r).map(|t2| (t2 / (2.0 * duration_s)).sqrt())
+}
+
+fn check_rates(st: &Stats, factor: f64, v: f64, duration_s: f64) {
+    let sigma = factor * Severity::Moderate.intensity_mps(CALIBRATION_H_M);
+    let p = DrydenParams::default();
+    let (unit_sd, rho_q, rho_r) = rate_model(&p);
+    let want = sigma * unit_sd;
+    let se = rate_standard_errors(v, duration_s);
+    for i in 0..3 {
+        let rel = st.sd_w[i] / want[i] - 1.0;
+        assert!(
+            rel.abs() < K * se[i] + BIAS,
+            "rate {i}: σ {} vs {} (rel SE {})",
+            st.sd_w[i],
+            want[i],
+            se[i]
+        );
+    }
+    // p: OU of length λ, so τ₁ = 2λ/V and SE(mean) = σ_p√(τ₁/T).
+    let tau1_p = 2.0 * p.roll_pitch_length_m() / v;
+    assert!(st.mean_w.x.abs() < K * want.x * (tau1_p / duration_s).sqrt());
+    // q, r are slopes: their time mean is a difference of (lagged) velocities over V·T,
+    // bounded like the acceleration mean by a few σ_v/(V·T).
+    for i in 1..3 {
+        assert!(st.mean_w[i].abs() < K * 2.0_f64.sqrt() * sigma / (v * duration_s));
+    }
+    // Signs and lag: q_g = −∂w/∂x correlates with −a_w, r_g = +∂v/∂x with +a_v. Sampling SE
+    // of a correlation ≈ (1 − ρ²)√(τ₂/T) (τ₂ of the acceleration, the longer-lived of the two
+    // at these lengths, √(τ₂/T) = √2·SE_rel(σ̂_a)); the finite-difference acceleration's σ is
+    // biased by ≤ 0.15 %, which moves ρ by at most that much on either side: 0.3 % allowance.
+    let [_, _, se_acc] = standard_errors(v, duration_s);
+    for (got, want, name) in [(-st.corr_qa, rho_q, "q"), (st.corr_ra, rho_r, "r")] {
+        let se = (1.0 - want * want) * 2.0_f64.sqrt() * se_acc[1];
+        assert!(
+            (got - want).abs() < K * se + 0.003 * want,
+            "{name}: correlation {got} vs {want} (SE {se})"
+        );
+    }
+    // p_g is independent of w_g: SE of the sample correlation of two independent series is
+    // √(∫ρ_p ρ_w dτ / T) ≤ √(τ₁_p/T) (|ρ_w| ≤ 1).
+    assert!(
+        st.corr_pw.abs() < K * (tau1_p / duration_s).sqrt(),
+        "corr(p, w) {}",
+        st.corr_pw
+    );
+}
+
 fn target_accel_sd(v: f64) -> Vector3<f64> {
     let r = v / CALIBRATION_TAS_MPS;
     Vector3::new(
@@ -175,6 +282,7 @@ fn calibration_statistics_at_500_hz() {
     let t = 40_000.0;
     let st = run(1.0, 0.002, CALIBRATION_TAS_MPS, t, 1);
     check(&st, 1.0, CALIBRATION_TAS_MPS, t);
+    check_rates(&st, 1.0, CALIBRATION_TAS_MPS, t);
 }
 
 #[test]
@@ -184,10 +292,13 @@ fn acceleration_sigma_is_step_independent_and_scales_with_speed() {
     let t = 20_000.0;
     let st = run(1.0, 0.01, CALIBRATION_TAS_MPS, t, 2);
     check(&st, 1.0, CALIBRATION_TAS_MPS, t);
+    check_rates(&st, 1.0, CALIBRATION_TAS_MPS, t);
     // Frozen field: at 20 m/s the same gusts are met 2/3 as fast → acceleration σ × 2/3,
     // velocity σ unchanged. Factor 0.5 halves both.
     let st = run(0.5, 0.002, 20.0, t, 3);
     check(&st, 0.5, 20.0, t);
+    // The rotational gusts are spatial gradients: same σ at 20 m/s, half at factor 0.5.
+    check_rates(&st, 0.5, 20.0, t);
 }
 
 /// Numbers for docs/ENVIRONMENT.md: `cargo test -p ianav-sim --profile ci --test
@@ -217,6 +328,32 @@ fn calibration_report() {
     }
     let [m, s, a] = standard_errors(CALIBRATION_TAS_MPS, t);
     println!("relative SE over {t} s: mean {m:.3?}, σ_v {s:.4?}, σ_a {a:.4?}");
+    let (unit_sd, rho_q, rho_r) = rate_model(&DrydenParams::default());
+    let sigma = Severity::Moderate.intensity_mps(CALIBRATION_H_M);
+    for (factor, duration) in [(1.0, t), (0.5, t), (1.0, 40_000.0)] {
+        let st = run(factor, 0.002, CALIBRATION_TAS_MPS, duration, 1);
+        println!(
+            "rates factor {factor}, {duration} s: σ = {:.5} {:.5} {:.5} rad/s (model {:.5} {:.5} {:.5}), \
+             mean = {:.1e} {:.1e} {:.1e}, ρ(p,w) {:.4}, ρ(q,−a_w) {:.4} (model {rho_q:.4}), \
+             ρ(r,a_v) {:.4} (model {rho_r:.4})",
+            st.sd_w.x,
+            st.sd_w.y,
+            st.sd_w.z,
+            factor * sigma * unit_sd.x,
+            factor * sigma * unit_sd.y,
+            factor * sigma * unit_sd.z,
+            st.mean_w.x,
+            st.mean_w.y,
+            st.mean_w.z,
+            st.corr_pw,
+            -st.corr_qa,
+            st.corr_ra
+        );
+    }
+    println!(
+        "rate rel SE over {t} s: {:.4?}",
+        rate_standard_errors(CALIBRATION_TAS_MPS, t)
+    );
     let p = DrydenParams::default();
     println!("{p:?}");
     for dt in [0.002, 0.01] {
@@ -226,13 +363,27 @@ fn calibration_report() {
             st.sd_a.x, st.sd_a.y, st.sd_a.z
         );
     }
-    let mut tb = Turbulence::new(&TurbulenceConfig { factor: 0.5 }, stream(1, "turbulence"));
-    let n = 10_000_000;
-    let start = std::time::Instant::now();
-    let mut acc = Vector3::zeros();
-    for i in 0..n {
-        // Slightly varying airspeed, as in flight.
-        acc += tb.step(0.002, 30.0 + 1e-4 * f64::from(i % 1000), 3000.0);
+    // Cost with and without the rotational gusts, interleaved to share the machine's load.
+    for _ in 0..3 {
+        for span in [p.span_m, 0.0] {
+            let mut tb = Turbulence::with_params(
+                &TurbulenceConfig { factor: 0.5 },
+                p.with_span(span),
+                stream(1, "turbulence"),
+            );
+            let n = 5_000_000;
+            let start = std::time::Instant::now();
+            let mut acc = Vector3::zeros();
+            for i in 0..n {
+                // Slightly varying airspeed, as in flight.
+                acc += tb.step(0.002, 30.0 + 1e-4 * f64::from(i % 1000), 3000.0);
+                acc += tb.rate_b_rps();
+            }
+            println!(
+                "span {span} m: per step {:?} ({:.3e})",
+                start.elapsed() / n,
+                acc.norm()
+            );
+        }
     }
-    println!("per step: {:?} ({acc:?})", start.elapsed() / n);
 }

@@ -6,8 +6,11 @@
 //! symmetry plane normal to V, side force normal to both), so a model without drag does no
 //! work on the air-relative motion. Moment coefficients are **stability-axis** derivatives
 //! (the estimation methods produce them there): the body rates are rotated into stability
-//! axes by α, the moments back into body axes. Rates are ω_nb^b non-dimensionalised with
-//! `b/(2V)` (roll, yaw) and `c/(2V)` (pitch). Moments are about the full-tank CG, the
+//! axes by α, the moments back into body axes. Rates are the body's angular velocity relative
+//! to the air, `ω_nb^b − ω_g^b` (ω_g the rotational gust `AirInputs::turb_rate_b_rps`, the
+//! rigid rotation matching the local gust gradients `(∂w/∂y, −∂w/∂x, ∂v/∂x)`; the caller
+//! subtracts it), non-dimensionalised with `b/(2V)` (roll, yaw) and `c/(2V)` (pitch): a body
+//! rotating with the air feels no rate damping. Moments are about the full-tank CG, the
 //! reference of the static margin; the caller transfers them to the actual CG.
 
 use nalgebra::Vector3;
@@ -266,14 +269,15 @@ impl AeroModel {
         self.alpha0_rad + self.p.c_lift_max / self.p.c_lift_alpha_prad
     }
 
-    /// Aerodynamic loads for air-relative motion `air`, density `rho_kgpm3`, body rates
-    /// relative to NED `w_nb_b_rps` and control positions `u` (finite, rad).
+    /// Aerodynamic loads for air-relative motion `air`, density `rho_kgpm3`, body angular
+    /// velocity relative to the air `w_air_b_rps` (= ω_nb^b − rotational gust; ω_nb^b in still
+    /// air) and control positions `u` (finite, rad).
     #[inline]
     pub fn loads(
         &self,
         air: &AirRelative,
         rho_kgpm3: f64,
-        w_nb_b_rps: &Vector3<f64>,
+        w_air_b_rps: &Vector3<f64>,
         u: &Controls,
     ) -> AeroLoads {
         let p = &self.p;
@@ -298,10 +302,10 @@ impl AeroModel {
 
         // Stability-axis rates, non-dimensional.
         let inv_2v = 0.5 / v.max(RATE_NONDIM_MIN_TAS_MPS);
-        let p_s = w_nb_b_rps.x * ca + w_nb_b_rps.z * sa;
-        let r_s = -w_nb_b_rps.x * sa + w_nb_b_rps.z * ca;
+        let p_s = w_air_b_rps.x * ca + w_air_b_rps.z * sa;
+        let r_s = -w_air_b_rps.x * sa + w_air_b_rps.z * ca;
         let p_hat = p_s * p.wing_span_m * inv_2v;
-        let q_hat = w_nb_b_rps.y * p.mean_chord_m * inv_2v;
+        let q_hat = w_air_b_rps.y * p.mean_chord_m * inv_2v;
         let r_hat = r_s * p.wing_span_m * inv_2v;
         let alpha = air.aoa_rad;
         let beta = air.aos_rad;

@@ -68,6 +68,11 @@ pub struct AirInputs {
     pub wind_ned_mps: Vector3<f64>,
     /// High-frequency (turbulence) wind, body axes, m/s.
     pub turb_b_mps: Vector3<f64>,
+    /// Angular velocity of the air (rotational turbulence `(p_g, q_g, r_g)`, the rigid rotation
+    /// matching the local gust gradients: `p_g = ∂w/∂y`, `q_g = −∂w/∂x`, `r_g = ∂v/∂x`), body
+    /// axes, rad/s. The aerodynamic rate terms use the body rate relative to the air,
+    /// `ω_nb^b − turb_rate_b`.
+    pub turb_rate_b_rps: Vector3<f64>,
 }
 
 /// Air-relative motion derived from the state and the wind.
@@ -294,13 +299,14 @@ impl Aircraft {
     }
 
     /// Forces, moments, specific force, angular acceleration, propulsion by-products at `x`
-    /// (pure). Aerodynamic rates are ω_nb^b.
+    /// (pure). Aerodynamic rates are ω_nb^b − `air.turb_rate_b_rps`.
     pub fn loads(&self, x: &TruthState, u: &Controls, air: &AirInputs) -> Loads {
         self.loads_with_rates(x, u, air, &dynamics::w_nb_b(x))
     }
 
     /// [`Self::loads`] with the body rate relative to NED `w_nb_b_rps` given (the equations of
-    /// motion compute it anyway; trim and linearisation use a flat Earth).
+    /// motion compute it anyway; trim and linearisation use a flat Earth). The rotational gust
+    /// `air.turb_rate_b_rps` is subtracted from it for the aerodynamics.
     pub fn loads_with_rates(
         &self,
         x: &TruthState,
@@ -329,7 +335,9 @@ impl Aircraft {
         shaft_warm_rps: Option<f64>,
     ) -> (Loads, Option<f64>) {
         let rel = air_relative(x, air);
-        let aero = self.aero.loads(&rel, air.rho_kgpm3, w_nb_b_rps, u);
+        // The rate damping acts on the rotation relative to the air (docs/AIRCRAFT.md §1).
+        let w_air_b_rps = w_nb_b_rps - air.turb_rate_b_rps;
+        let aero = self.aero.loads(&rel, air.rho_kgpm3, &w_air_b_rps, u);
         // The engine stops when the tank is empty (m at or below the empty mass).
         let power_w = if x.mass_kg > self.mass.empty_kg() {
             power_avail_w
@@ -424,5 +432,86 @@ impl Aircraft {
     /// linearisation about `trim` (flat Earth, still air with the density etc. of `air`).
     pub fn linear_modes(&self, trim: &Trim, air: &AirInputs) -> Result<Modes, AircraftError> {
         trim::modes(self, trim, air)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use ianav::env::atmosphere;
+    use ianav::math::so3;
+
+    fn setup() -> (Aircraft, TruthState, AirInputs, Controls) {
+        let ac = Aircraft::new(AircraftParams::default());
+        let hp_m = 2500.0;
+        let p_pa = atmosphere::pressure_pa(hp_m);
+        let temp_k = atmosphere::temperature_k(hp_m, 0.0);
+        let air = AirInputs {
+            p_pa,
+            temp_k,
+            rho_kgpm3: atmosphere::density_kgpm3(p_pa, temp_k),
+            wind_ned_mps: Vector3::zeros(),
+            turb_b_mps: Vector3::zeros(),
+            turb_rate_b_rps: Vector3::zeros(),
+        };
+        let x = TruthState {
+            pos: Geodetic {
+                lat_rad: 0.8,
+                lon_rad: 0.1,
+                h_m: 2500.0,
+            },
+            v_b_mps: Vector3::new(28.9, 0.4, 1.5),
+            q_nb: so3::from_euler_zyx(0.3, 0.05, 0.02),
+            w_ib_b_rps: Vector3::zeros(),
+            mass_kg: 19.5,
+        };
+        let u = Controls {
+            throttle: 0.4,
+            elevator_rad: -0.02,
+            aileron_rad: 0.01,
+            rudder_rad: 0.0,
+        };
+        (ac, x, air, u)
+    }
+
+    #[test]
+    fn air_rotating_with_the_body_cancels_the_rate_terms() {
+        // ω_nb = ω_g: no rotation relative to the air, the same loads as no rotation at all
+        // (only the aerodynamic rate terms see ω; the gyroscopic term uses ω_ib and is the same
+        // in both since the state is unchanged).
+        let (ac, x, air, u) = setup();
+        let w = Vector3::new(0.3, -0.2, 0.15);
+        let rotating = AirInputs {
+            turb_rate_b_rps: w,
+            ..air
+        };
+        let l0 = ac.loads_with_rates(&x, &u, &air, &Vector3::zeros());
+        let l1 = ac.loads_with_rates(&x, &u, &rotating, &w);
+        assert!((l1.moment_b_nm - l0.moment_b_nm).norm() < 1e-12 * l0.moment_b_nm.norm().max(1.0));
+        assert!((l1.f_ib_b_mps2 - l0.f_ib_b_mps2).norm() < 1e-12 * l0.f_ib_b_mps2.norm());
+        // And a rotation of the air alone acts as the opposite body rate.
+        let l2 = ac.loads_with_rates(&x, &u, &rotating, &Vector3::zeros());
+        let l3 = ac.loads_with_rates(&x, &u, &air, &(-w));
+        assert_eq!(l2.moment_b_nm, l3.moment_b_nm);
+    }
+
+    #[test]
+    fn rotational_gusts_push_the_aircraft_the_physical_way() {
+        // p_g = ∂w/∂y > 0: more downdraft on the right wing, less lift there → roll right.
+        // q_g = −∂w/∂x > 0: more updraft at the wing than at the tail → the tail lifts less →
+        // nose up. r_g = ∂v/∂x > 0: the fin meets air moving left relative to the nose → side
+        // force to the left on the fin → nose right.
+        let (ac, x, air, u) = setup();
+        let base = ac.loads(&x, &u, &air).moment_b_nm;
+        for i in 0..3 {
+            let mut w = Vector3::zeros();
+            w[i] = 0.1;
+            let gust = AirInputs {
+                turb_rate_b_rps: w,
+                ..air
+            };
+            let m = ac.loads(&x, &u, &gust).moment_b_nm;
+            assert!(m[i] > base[i], "axis {i}: {} vs {}", m[i], base[i]);
+        }
     }
 }

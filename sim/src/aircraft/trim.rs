@@ -288,6 +288,7 @@ pub(super) fn modes(ac: &Aircraft, trim: &Trim, air: &AirInputs) -> Result<Modes
     let still = AirInputs {
         wind_ned_mps: Vector3::zeros(),
         turb_b_mps: Vector3::zeros(),
+        turb_rate_b_rps: Vector3::zeros(),
         ..*air
     };
     let s0 = SVector::<f64, 8>::from_column_slice(&[

@@ -21,13 +21,29 @@
 //! Ornstein–Uhlenbeck step (`φ = e^{−Δs/L}`, noise `√(1−φ²)`), so its variance is exact for any
 //! step; the following first-order sections use the exact decay `φ` with a trapezoidal input
 //! (error O((Δs/ℓ)²) ≈ 3e-6 at 500 Hz). Coefficients are recomputed only when `Δs` changes by
-//! more than [`COEFF_REL_TOL`]; three normal draws per step.
+//! more than [`COEFF_REL_TOL`]; four normal draws per step (three with the rotation off).
+//!
+//! Rotational gusts (MIL-F-8785C / MIL-HDBK-1797 Dryden angular rates, span `b` from
+//! [`DrydenParams::span_m`]): the angular velocity of the air `ω_g` in body axes, defined so
+//! that the aerodynamic rate terms see `ω_nb − ω_g` (`p_g = ∂w/∂y`, `q_g = −∂w/∂x`,
+//! `r_g = ∂v/∂x`, the rigid rotation that matches the local gust gradients):
+//! - `p_g`: the spanwise distribution of `w`, an independent first-order spatial process of
+//!   length `λ_p = 4b/π` with the specification's intensity
+//!   `σ_p² = 0.4π σ_w² / (λ_p^{4/3} L_w^{2/3})` (spectrum
+//!   `(σ_w²/L_w)·0.8·(πL_w/4b)^{1/3}/(1 + (4bΩ/π)²)`).
+//! - `q_g = −D/(1 + λ_q D)·w_g`, `r_g = +D/(1 + λ_r D)·v_g` with `D = d/ds`, `λ_q = 4b/π`,
+//!   `λ_r = 3b/π`, applied to this generator's own (rolled-off) `v`, `w` so that the rotation is
+//!   the gradient of the very field the aircraft flies through. The specification writes
+//!   `q_g`, `r_g` with the opposite signs (`q_g = ∂w/∂x`, `r_g = −∂v/∂x`) and a "±" between
+//!   sources; only the sign relative to the aerodynamic convention matters, see
+//!   `docs/ENVIRONMENT.md`, "Rotational gusts".
 
-use std::f64::consts::FRAC_1_SQRT_2;
+use std::f64::consts::{FRAC_1_SQRT_2, PI};
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
+use crate::aircraft::AeroParams;
 use crate::rng::{self, Stream};
 
 /// Feet in metres.
@@ -50,6 +66,15 @@ pub const CALIBRATION_ACCEL_VAR_X: f64 = 0.372;
 /// Target variance of the y and z gust accelerations at factor 1, (m/s²)² (0.563, σ ≈
 /// 0.75 m/s²).
 pub const CALIBRATION_ACCEL_VAR_YZ: f64 = 0.563;
+
+/// Length of the roll- and pitch-gust filters per unit span, 4/π (MIL-F-8785C: time constant
+/// `4b/(πV)` of `p_g` and `q_g`).
+pub const ROLL_PITCH_LENGTH_PER_SPAN: f64 = 4.0 / PI;
+/// Length of the yaw-gust filter per unit span, 3/π (time constant `3b/(πV)` of `r_g`).
+pub const YAW_LENGTH_PER_SPAN: f64 = 3.0 / PI;
+/// The 0.8 of the MIL-F-8785C roll-gust spectrum
+/// `(σ_w²/L_w)·0.8·(πL_w/(4b))^{1/3}/(1 + (4bΩ/π)²)`.
+const ROLL_SPECTRUM_COEFF: f64 = 0.8;
 
 /// Relative change of the spatial step `Δs = V·Δt` that triggers recomputing the filter
 /// coefficients. Reusing coefficients computed for a step within 0.1 % means the state is
@@ -211,6 +236,39 @@ pub fn derivative_variance_vw(scale_m: f64, ell_m: f64) -> f64 {
     (2.0 * ell_m + 3.0 * scale_m) / (scale_m * ell_m * (ell_m + 2.0 * scale_m))
 }
 
+/// σ of the roll gust `p_g` per unit intensity σ_w, 1/m (multiply by σ_w for rad/s):
+/// `√(0.4π) / (λ^{2/3} L_w^{1/3})`, `λ = 4b/π` — the integral over `Ω ∈ [0, ∞)` of the
+/// MIL-F-8785C spectrum `(1/L_w)·0.8·(L_w/λ)^{1/3}/(1 + λ²Ω²)`, which is
+/// `0.4π/(λ^{4/3} L_w^{2/3})`.
+/// The frozen-field spectrum has no airspeed in it, so neither has σ_p.
+pub fn roll_rate_sigma_per_intensity(scale_length_w_m: f64, span_m: f64) -> f64 {
+    let lambda = ROLL_PITCH_LENGTH_PER_SPAN * span_m;
+    (0.5 * ROLL_SPECTRUM_COEFF * PI).sqrt() / (lambda.powf(2.0 / 3.0) * scale_length_w_m.cbrt())
+}
+
+/// Variance, per unit variance of the rolled-off `v`/`w`, of its spatial slope seen through the
+/// first-order lag of length `lag_m` (`D/(1 + λD)`, the form of `q_g` and `r_g`), 1/m²:
+/// `(R(λ) − R(ℓ)) / ((ℓ² − λ²)·R(ℓ))` with `R(a)` = [`rolloff_variance_ratio_vw`]`(L, a)`.
+/// From `Ω²/(1 + λ²Ω²) = (1 − 1/(1 + λ²Ω²))/λ²` and the partial fractions of
+/// `1/((1 + ℓ²Ω²)(1 + λ²Ω²))`. Tends to [`derivative_variance_vw`] as `λ → 0`; requires
+/// `λ ≠ ℓ` (NaN otherwise).
+pub fn lagged_slope_variance_vw(scale_m: f64, ell_m: f64, lag_m: f64) -> f64 {
+    let r_ell = rolloff_variance_ratio_vw(scale_m, ell_m);
+    let r_lag = rolloff_variance_ratio_vw(scale_m, lag_m);
+    let den = (ell_m * ell_m - lag_m * lag_m) * r_ell;
+    if den == 0.0 {
+        f64::NAN
+    } else {
+        (r_lag - r_ell) / den
+    }
+}
+
+/// Span of the default aircraft, m (the rotational gusts scale with the span; the flight sets
+/// the actual aircraft's span with [`DrydenParams::with_span`]).
+fn default_span_m() -> f64 {
+    AeroParams::default().wing_span_m
+}
+
 /// Parameters of the Dryden generator.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -225,6 +283,10 @@ pub struct DrydenParams {
     pub rolloff_length_x_m: f64,
     /// Roll-off length ℓ_yz of the lateral and vertical components, m.
     pub rolloff_length_yz_m: f64,
+    /// Wing span b of the aircraft, m: sets the rotational gusts (`λ_p = λ_q = 4b/π`,
+    /// `λ_r = 3b/π`). A non-finite or non-positive span switches them off (exact zeros).
+    #[serde(default = "default_span_m")]
+    pub span_m: f64,
 }
 
 impl DrydenParams {
@@ -249,12 +311,33 @@ impl DrydenParams {
             scale_length_vw_m: l,
             rolloff_length_x_m: 1.0 / (l_u * k_x),
             rolloff_length_yz_m: 6.0 * l / (b + disc.sqrt()),
+            span_m: default_span_m(),
         }
+    }
+
+    /// The same parameters for an aircraft of span `span_m`.
+    pub fn with_span(self, span_m: f64) -> Self {
+        Self { span_m, ..self }
+    }
+
+    /// Whether the rotational gusts are on (finite, positive span).
+    pub fn rotation_enabled(&self) -> bool {
+        self.span_m.is_finite() && self.span_m > 0.0
+    }
+
+    /// Length of the `p_g` and `q_g` filters `4b/π`, m.
+    pub fn roll_pitch_length_m(&self) -> f64 {
+        ROLL_PITCH_LENGTH_PER_SPAN * self.span_m
+    }
+
+    /// Length of the `r_g` filter `3b/π`, m.
+    pub fn yaw_length_m(&self) -> f64 {
+        YAW_LENGTH_PER_SPAN * self.span_m
     }
 }
 
 impl Default for DrydenParams {
-    /// Moderate turbulence, calibrated roll-offs.
+    /// Moderate turbulence, calibrated roll-offs, the default aircraft's span.
     fn default() -> Self {
         Self::calibrated(Severity::Moderate)
     }
@@ -277,6 +360,15 @@ struct Coeffs {
     one_minus_phi_x: f64,
     phi_yz: f64,
     one_minus_phi_yz: f64,
+    /// Rotational filters: `e^{−Δs/λ}` and `1 − φ` for `λ_p = λ_q = 4b/π` (with the OU noise
+    /// gain of `p`) and `λ_r = 3b/π`; `1/Δs` for the slopes. NaN when the rotation is off
+    /// (never used then).
+    phi_pq: f64,
+    one_minus_phi_pq: f64,
+    noise_p: f64,
+    phi_r: f64,
+    one_minus_phi_r: f64,
+    inv_ds: f64,
 }
 
 impl Coeffs {
@@ -289,6 +381,10 @@ impl Coeffs {
             one_minus(p.rolloff_length_yz_m),
             one_minus(p.scale_length_vw_m),
         );
+        let (ompq, omr) = (
+            one_minus(p.roll_pitch_length_m()),
+            one_minus(p.yaw_length_m()),
+        );
         Self {
             ds_m,
             phi_u: 1.0 - one_minus(p.scale_length_u_m),
@@ -300,6 +396,12 @@ impl Coeffs {
             one_minus_phi_x: omx,
             phi_yz: 1.0 - omyz,
             one_minus_phi_yz: omyz,
+            phi_pq: 1.0 - ompq,
+            one_minus_phi_pq: ompq,
+            noise_p: noise(p.roll_pitch_length_m()),
+            phi_r: 1.0 - omr,
+            one_minus_phi_r: omr,
+            inv_ds: 1.0 / ds_m,
         }
     }
 }
@@ -311,13 +413,21 @@ const WARMUP_LENGTHS: f64 = 12.0;
 const WARMUP_STEP_FRACTION: f64 = 0.05;
 /// Cap on the warm-up steps (only reached with extreme, non-default parameters).
 const WARMUP_MAX_STEPS: usize = 100_000;
+/// The rotational filters (lengths of a few metres) get a second warm-up over
+/// [`WARMUP_LENGTHS`] × 4b/π at a step of this fraction of 3b/π: the main warm-up's step (a
+/// twentieth of the shortest roll-off, ~2 m) is too coarse to resolve them, and a fine step
+/// over the whole main warm-up would cost 15× more.
+const ROTATION_WARMUP_STEP_FRACTION: f64 = 0.05;
 
 /// Stateful Dryden generator: advance it once per integration step.
 ///
+/// Outputs after each [`Turbulence::step`]: the gust velocity (returned, also
+/// [`Turbulence::velocity_b_mps`]) and the gust angular velocity [`Turbulence::rate_b_rps`].
+///
 /// Behaviour on unusual input: a non-finite `factor` is treated as 0 (no turbulence). A step
 /// with a non-finite or non-positive `Δs = tas·dt` (aircraft not moving through the air, NaN,
-/// negative time step) does not advance the field — the velocity is held (frozen field). A
-/// non-finite altitude keeps the previous intensity.
+/// negative time step) does not advance the field — velocity and rates are held (frozen field).
+/// A non-finite altitude keeps the previous intensity.
 #[derive(Debug, Clone)]
 pub struct Turbulence {
     rng: Stream,
@@ -340,6 +450,15 @@ pub struct Turbulence {
     r: [f64; 2],
     y_vw: [f64; 2],
     velocity_b_mps: Vector3<f64>,
+    /// Rotational gusts on ([`DrydenParams::rotation_enabled`]).
+    rotation: bool,
+    /// σ_p per unit intensity, 1/m ([`roll_rate_sigma_per_intensity`]).
+    gain_p: f64,
+    /// p channel: unit-variance OU state.
+    x_p: f64,
+    /// Lagged spatial slopes of the unit-scale rolled-off v and w outputs (`y_vw`), 1/m.
+    slope_vw: [f64; 2],
+    rate_b_rps: Vector3<f64>,
 }
 
 impl Turbulence {
@@ -365,6 +484,7 @@ impl Turbulence {
         let longest = lengths.iter().fold(0.0_f64, |a, &b| a.max(b));
         let shortest = lengths.iter().fold(f64::INFINITY, |a, &b| a.min(b));
         let warmup_ds = WARMUP_STEP_FRACTION * shortest;
+        let rotation = params.rotation_enabled();
         let mut t = Self {
             rng,
             factor,
@@ -385,6 +505,15 @@ impl Turbulence {
             r: [0.0; 2],
             y_vw: [0.0; 2],
             velocity_b_mps: Vector3::zeros(),
+            rotation,
+            gain_p: if rotation {
+                roll_rate_sigma_per_intensity(params.scale_length_vw_m, params.span_m)
+            } else {
+                0.0
+            },
+            x_p: 0.0,
+            slope_vw: [0.0; 2],
+            rate_b_rps: Vector3::zeros(),
         };
         if factor != 0.0 && warmup_ds.is_finite() && warmup_ds > 0.0 {
             let n = (WARMUP_LENGTHS * longest / warmup_ds).ceil();
@@ -395,6 +524,22 @@ impl Turbulence {
             };
             for _ in 0..n {
                 t.advance();
+            }
+            // The rotational states start from zero too; 12 of their lengths at a resolving
+            // step leave e^{−12} ≈ 6e-6 of that (the velocity states are already stationary
+            // and stay so).
+            let fine_ds = ROTATION_WARMUP_STEP_FRACTION * params.yaw_length_m();
+            if rotation && fine_ds.is_finite() && fine_ds > 0.0 {
+                let n = (WARMUP_LENGTHS * params.roll_pitch_length_m() / fine_ds).ceil();
+                let n = if n.is_finite() {
+                    (n as usize).min(WARMUP_MAX_STEPS)
+                } else {
+                    0
+                };
+                t.coeffs = Coeffs::new(&params, fine_ds);
+                for _ in 0..n {
+                    t.advance();
+                }
             }
             t.update_output();
         }
@@ -407,7 +552,8 @@ impl Turbulence {
     }
 
     /// Advance by `dt_s` at true airspeed `tas_mps` and geometric altitude `h_m`; returns the
-    /// high-frequency wind velocity in body axes, m/s.
+    /// high-frequency wind velocity in body axes, m/s. The matching angular velocity of the air
+    /// is then [`Self::rate_b_rps`].
     pub fn step(&mut self, dt_s: f64, tas_mps: f64, h_m: f64) -> Vector3<f64> {
         if self.factor == 0.0 {
             return self.velocity_b_mps;
@@ -435,9 +581,18 @@ impl Turbulence {
         self.velocity_b_mps
     }
 
+    /// The current angular velocity of the air (rotational gust) in body axes after the last
+    /// step, rad/s: `(p_g, q_g, r_g)` with `p_g = ∂w/∂y`, `q_g = −∂w/∂x`, `r_g = ∂v/∂x` (the
+    /// rigid rotation matching the local gust gradients), so the aerodynamic rate terms use
+    /// `ω_nb − ω_g`. Exactly zero with factor 0 or the rotation off.
+    pub fn rate_b_rps(&self) -> Vector3<f64> {
+        self.rate_b_rps
+    }
+
     /// One spatial step of all filters with the cached coefficients.
     fn advance(&mut self) {
         let c = self.coeffs;
+        let y_vw_old = self.y_vw;
         let eta = [
             rng::normal(&mut self.rng),
             rng::normal(&mut self.rng),
@@ -457,6 +612,16 @@ impl Turbulence {
             self.z2[i] = z2;
             self.r[i] = r;
         }
+        if self.rotation {
+            self.x_p = c.phi_pq * self.x_p + c.noise_p * rng::normal(&mut self.rng);
+            // Lag of the slope of the piecewise-linear y: exact for a slope constant over the
+            // step (zero-order hold on Δy/Δs), so the discrete q, r are the continuous filters
+            // applied to the linear interpolation of the samples.
+            let dv = (self.y_vw[0] - y_vw_old[0]) * c.inv_ds;
+            let dw = (self.y_vw[1] - y_vw_old[1]) * c.inv_ds;
+            self.slope_vw[0] = c.phi_r * self.slope_vw[0] + c.one_minus_phi_r * dv;
+            self.slope_vw[1] = c.phi_pq * self.slope_vw[1] + c.one_minus_phi_pq * dw;
+        }
     }
 
     fn update_output(&mut self) {
@@ -466,6 +631,15 @@ impl Turbulence {
             s * self.gain_vw * self.y_vw[0],
             s * self.gain_vw * self.y_vw[1],
         );
+        if self.rotation {
+            // p_g = ∂w/∂y (independent spanwise process); q_g = −∂w/∂x; r_g = +∂v/∂x.
+            let sv = s * self.gain_vw;
+            self.rate_b_rps = Vector3::new(
+                s * self.gain_p * self.x_p,
+                -(sv * self.slope_vw[1]),
+                sv * self.slope_vw[0],
+            );
+        }
     }
 }
 
@@ -544,6 +718,29 @@ mod tests {
         let dvar_u = integrate(&|o| o * o * phi_u(o), ellx);
         assert!((var_u - rolloff_variance_ratio_u(lu, ellx)).abs() < 1e-6);
         assert!((dvar_u / var_u - derivative_variance_u(lu, ellx)).abs() < 1e-6 * dvar_u / var_u);
+        // Slope through the q_g/r_g lag, for both gust lengths of a 2.68 m span.
+        for lag in [4.0 / pi * 2.68, 3.0 / pi * 2.68] {
+            let qvar = integrate(&|o| o * o * phi_v(o) / (1.0 + (lag * o).powi(2)), lag);
+            let want = lagged_slope_variance_vw(l, ell, lag);
+            assert!((qvar / var_v - want).abs() < 1e-6 * want, "{lag}");
+        }
+        // Roll gust: the MIL-F-8785C spectrum (one-sided, so half the two-sided integral).
+        let (lw, b) = (SCALE_LENGTH_VW_M, 2.68);
+        let lam = 4.0 * b / pi;
+        let phi_p = |o: f64| 0.8 / lw * (pi * lw / (4.0 * b)).cbrt() / (1.0 + (lam * o).powi(2));
+        let var_p = 0.5 * integrate(&phi_p, lam);
+        let want = roll_rate_sigma_per_intensity(lw, b).powi(2);
+        assert!((var_p - want).abs() < 1e-6 * want);
+    }
+
+    #[test]
+    fn lagged_slope_tends_to_the_slope() {
+        let (l, ell) = (SCALE_LENGTH_VW_M, 77.0);
+        let d = derivative_variance_vw(l, ell);
+        // O(λ/ℓ) below the unlagged slope variance, converging to it.
+        assert!((lagged_slope_variance_vw(l, ell, 1e-4) - d).abs() < 1e-5 * d);
+        assert!(lagged_slope_variance_vw(l, ell, 3.0) < d);
+        assert!(lagged_slope_variance_vw(l, ell, ell).is_nan());
     }
 
     #[test]
@@ -551,10 +748,29 @@ mod tests {
         let mut t = turb(0.0, 1);
         for _ in 0..1000 {
             assert_eq!(t.step(0.002, 30.0, 3000.0), Vector3::zeros());
+            assert_eq!(t.rate_b_rps(), Vector3::zeros());
         }
         assert_eq!(t.velocity_b_mps(), Vector3::zeros());
         let mut t = turb(f64::NAN, 1);
         assert_eq!(t.step(0.002, 30.0, 3000.0), Vector3::zeros());
+        assert_eq!(t.rate_b_rps(), Vector3::zeros());
+    }
+
+    #[test]
+    fn zero_or_invalid_span_switches_only_the_rotation_off() {
+        for span in [0.0, -1.0, f64::NAN, f64::INFINITY] {
+            let p = DrydenParams::default().with_span(span);
+            let mut t = Turbulence::with_params(
+                &TurbulenceConfig { factor: 1.0 },
+                p,
+                stream(5, "env.turbulence"),
+            );
+            for _ in 0..1000 {
+                let v = t.step(0.002, 30.0, 3000.0);
+                assert!(v.iter().all(|x| x.is_finite()) && v != Vector3::zeros());
+                assert_eq!(t.rate_b_rps(), Vector3::zeros());
+            }
+        }
     }
 
     #[test]
@@ -563,28 +779,57 @@ mod tests {
         for _ in 0..10_000 {
             let va = a.step(0.002, 30.0, 2800.0);
             assert_eq!(va, b.step(0.002, 30.0, 2800.0));
+            assert_eq!(a.rate_b_rps(), b.rate_b_rps());
             // 0.5 is a power of two: the scaled output is exactly half.
             assert_eq!(h.step(0.002, 30.0, 2800.0), 0.5 * va);
+            assert_eq!(h.rate_b_rps(), 0.5 * a.rate_b_rps());
         }
         assert_ne!(turb(1.0, 4).velocity_b_mps(), a.velocity_b_mps());
+        assert_ne!(turb(1.0, 4).rate_b_rps(), a.rate_b_rps());
+    }
+
+    #[test]
+    fn span_scales_the_roll_gust_as_the_specification() {
+        // σ_p ∝ b^{−2/3}: halving the span raises it by 2^{2/3}.
+        let l = SCALE_LENGTH_VW_M;
+        let ratio = roll_rate_sigma_per_intensity(l, 1.34) / roll_rate_sigma_per_intensity(l, 2.68);
+        assert!((ratio - 2.0_f64.powf(2.0 / 3.0)).abs() < 1e-12);
+        let p = DrydenParams::default();
+        assert_eq!(p.span_m, AeroParams::default().wing_span_m);
+        assert!((p.roll_pitch_length_m() / p.yaw_length_m() - 4.0 / 3.0).abs() < 1e-15);
     }
 
     #[test]
     fn stationary_from_the_start() {
         // After the warm-up the first sample is a draw from the stationary law: over many
         // seeds its per-axis σ matches σ(h_cal) (SE of σ̂ ≈ σ/√(2n); 4.5 SE bound: 10 %).
+        // The same for the rotational gusts against their closed-form σ.
         let n = 1000;
         let sigma = Severity::Moderate.intensity_mps(CALIBRATION_H_M);
-        let mut ss = Vector3::zeros();
+        let p = DrydenParams::default();
+        let (l, ell) = (p.scale_length_vw_m, p.rolloff_length_yz_m);
+        let sigma_rate = sigma
+            * Vector3::new(
+                roll_rate_sigma_per_intensity(l, p.span_m),
+                lagged_slope_variance_vw(l, ell, p.roll_pitch_length_m()).sqrt(),
+                lagged_slope_variance_vw(l, ell, p.yaw_length_m()).sqrt(),
+            );
+        let (mut ss, mut sr) = (Vector3::zeros(), Vector3::zeros());
         for s in 0..n {
-            let v = turb(1.0, s).velocity_b_mps();
+            let t = turb(1.0, s);
+            let (v, w) = (t.velocity_b_mps(), t.rate_b_rps());
             ss += v.component_mul(&v);
+            sr += w.component_mul(&w);
         }
+        let bound = 4.5 / (2.0 * n as f64).sqrt();
         for i in 0..3 {
             let sd = (ss[i] / n as f64).sqrt();
+            assert!((sd - sigma).abs() < bound * sigma, "{i}: {sd}");
+            let sd = (sr[i] / n as f64).sqrt();
             assert!(
-                (sd - sigma).abs() < 4.5 * sigma / (2.0 * n as f64).sqrt(),
-                "{i}: {sd}"
+                (sd - sigma_rate[i]).abs() < bound * sigma_rate[i],
+                "rate {i}: {sd} vs {}",
+                sigma_rate[i]
             );
         }
     }
@@ -593,6 +838,7 @@ mod tests {
     fn bad_inputs_hold_the_field() {
         let mut t = turb(1.0, 7);
         let v0 = t.step(0.002, 30.0, 3000.0);
+        let w0 = t.rate_b_rps();
         // Not moving through the air, NaN speed/step, negative step: state held.
         for (dt, tas) in [
             (0.002, 0.0),
@@ -601,14 +847,19 @@ mod tests {
             (-0.002, 30.0),
         ] {
             assert_eq!(t.step(dt, tas, 3000.0), v0);
+            assert_eq!(t.rate_b_rps(), w0);
         }
         // NaN altitude keeps the previous intensity.
         assert_eq!(t.step(0.0, 30.0, f64::NAN), v0);
+        assert_eq!(t.rate_b_rps(), w0);
         // Huge steps and speeds stay finite.
+        let finite = |t: &Turbulence| t.rate_b_rps().iter().all(|x| x.is_finite());
         for (dt, tas) in [(1e6, 30.0), (0.002, 1e12), (1e-12, 1e-9)] {
             assert!(t.step(dt, tas, 3000.0).iter().all(|x| x.is_finite()));
+            assert!(finite(&t));
         }
         assert!(t.step(0.002, 30.0, -1e9).iter().all(|x| x.is_finite()));
+        assert!(finite(&t));
     }
 
     #[test]
