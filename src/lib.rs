@@ -9,6 +9,7 @@
 //! right perturbations `X ⊕ τ = X ∘ Exp(τ)`; SI units and radians; time in `t_us: u64`.
 
 pub mod env;
+pub mod ins;
 pub mod io;
 pub mod math;
 pub mod sensors;

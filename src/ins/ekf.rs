@@ -1,0 +1,219 @@
+//! Generic EKF mechanics shared by the INS filters (author_impl §1.3): covariance prediction
+//! `P⁻ = F P Fᵀ + Q̃`, the measurement update with the Joseph form
+//! `P⁺ = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ` and an optional chi-square innovation gate, and the
+//! first-order discrete low-pass filter `LPF_Tf` of §1.3.
+//!
+//! The authors invert `S` explicitly; here `S` is factored by Cholesky, which doubles as the
+//! positive-definiteness check: an update whose `S` is not positive definite, or whose result
+//! is not finite, is refused and leaves the filter untouched.
+
+use nalgebra::{SMatrix, SVector};
+
+/// Why a measurement update was not applied.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) enum UpdateRejection {
+    /// `S` not positive definite, or a non-finite innovation, gain or covariance.
+    Numerical,
+    /// Normalised innovation squared above the gate.
+    Gated {
+        /// The normalised innovation squared `rᵀ S⁻¹ r`.
+        nis: f64,
+    },
+}
+
+/// An accepted update: the state correction and the normalised innovation squared.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct Correction<const N: usize> {
+    /// State (or error-state) correction `K r`.
+    pub dx: SVector<f64, N>,
+    /// `rᵀ S⁻¹ r`.
+    pub nis: f64,
+}
+
+/// `P ← F P Fᵀ + diag(q)`, symmetrised.
+pub(crate) fn predict_covariance<const N: usize>(
+    p: &mut SMatrix<f64, N, N>,
+    f: &SMatrix<f64, N, N>,
+    q_diag: &SVector<f64, N>,
+) {
+    let mut p_new = f * *p * f.transpose();
+    for i in 0..N {
+        p_new[(i, i)] += q_diag[i];
+    }
+    symmetrize(&mut p_new);
+    *p = p_new;
+}
+
+/// Measurement update with diagonal `R` (every observation of the INS has independent noise).
+///
+/// On success `P` holds the Joseph-form posterior and the correction is returned; the caller
+/// applies it to its (nominal) state. On rejection `P` is unchanged.
+pub(crate) fn update<const N: usize, const M: usize>(
+    p: &mut SMatrix<f64, N, N>,
+    h: &SMatrix<f64, M, N>,
+    r_diag: &SVector<f64, M>,
+    innovation: &SVector<f64, M>,
+    gate: Option<f64>,
+) -> Result<Correction<N>, UpdateRejection> {
+    let pht = *p * h.transpose();
+    let mut s = h * pht;
+    for i in 0..M {
+        s[(i, i)] += r_diag[i];
+    }
+    let chol = s.cholesky().ok_or(UpdateRejection::Numerical)?;
+    let nis = innovation.dot(&chol.solve(innovation));
+    if !nis.is_finite() {
+        return Err(UpdateRejection::Numerical);
+    }
+    if let Some(g) = gate
+        && nis > g
+    {
+        return Err(UpdateRejection::Gated { nis });
+    }
+    // Kᵀ = S⁻¹ H P (S and P symmetric).
+    let k = chol.solve(&pht.transpose()).transpose();
+    let dx = k * innovation;
+    let ikh = SMatrix::<f64, N, N>::identity() - k * h;
+    let mut p_new = ikh * *p * ikh.transpose();
+    // + K R Kᵀ with R diagonal.
+    let mut kr = k;
+    for (m, mut col) in kr.column_iter_mut().enumerate() {
+        col *= r_diag[m];
+    }
+    p_new += kr * k.transpose();
+    symmetrize(&mut p_new);
+    if !dx.iter().all(|v| v.is_finite()) || !p_new.iter().all(|v| v.is_finite()) {
+        return Err(UpdateRejection::Numerical);
+    }
+    *p = p_new;
+    Ok(Correction { dx, nis })
+}
+
+/// `P ← (P + Pᵀ)/2`: removes the rounding asymmetry of the products.
+pub(crate) fn symmetrize<const N: usize>(p: &mut SMatrix<f64, N, N>) {
+    for i in 0..N {
+        for j in 0..i {
+            let m = 0.5 * (p[(i, j)] + p[(j, i)]);
+            p[(i, j)] = m;
+            p[(j, i)] = m;
+        }
+    }
+}
+
+/// First-order discrete low-pass filter (author_impl §1.3, "LPF_Tf"):
+/// `y_k = β y_{k−1} + α u_k` with `α = Δt/(T_f + Δt)`, `β = T_f/(T_f + Δt)`, initialised with
+/// an explicit value. Δt is passed at each step, so the filter is rate independent.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct LowPass<T> {
+    /// Time constant `T_f`, s.
+    tau_s: f64,
+    /// Current output.
+    y: T,
+}
+
+impl<T> LowPass<T>
+where
+    T: Copy + std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
+{
+    /// Filter with time constant `tau_s` (s, ≥ 0) and initial output `y0`.
+    pub fn new(tau_s: f64, y0: T) -> Self {
+        Self { tau_s, y: y0 }
+    }
+
+    /// One step of `dt_s` (s, ≥ 0) with input `u`; returns the new output.
+    pub fn step(&mut self, u: T, dt_s: f64) -> T {
+        let den = self.tau_s + dt_s;
+        if den > 0.0 {
+            let alpha = dt_s / den;
+            self.y = self.y * (1.0 - alpha) + u * alpha;
+        }
+        self.y
+    }
+
+    /// Current output.
+    pub fn value(&self) -> T {
+        self.y
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+
+    #[test]
+    fn scalar_update_matches_closed_form() {
+        // Prior variance 4, R = 1: K = 0.8, posterior variance 0.8, correction 0.8·r.
+        let mut p = SMatrix::<f64, 1, 1>::new(4.0);
+        let c = update(
+            &mut p,
+            &SMatrix::<f64, 1, 1>::new(1.0),
+            &SVector::<f64, 1>::new(1.0),
+            &SVector::<f64, 1>::new(2.0),
+            None,
+        )
+        .unwrap();
+        assert!((c.dx[0] - 1.6).abs() < 1e-15);
+        assert!((p[(0, 0)] - 0.8).abs() < 1e-15);
+        assert!((c.nis - 0.8).abs() < 1e-15);
+    }
+
+    #[test]
+    fn joseph_update_equals_information_form() {
+        // Posterior information = prior information + Hᵀ R⁻¹ H (exact for linear models).
+        let p0 = Matrix3::new(2.0, 0.3, 0.1, 0.3, 1.5, -0.2, 0.1, -0.2, 0.7);
+        let h = SMatrix::<f64, 2, 3>::new(1.0, 0.5, 0.0, 0.0, -1.0, 2.0);
+        let r = Vector2::new(0.3, 0.9);
+        let mut p = p0;
+        update(&mut p, &h, &r, &Vector2::new(0.1, -0.2), None).unwrap();
+        let r_inv = Matrix2::from_diagonal(&r.map(|v| 1.0 / v));
+        let info = p0.try_inverse().unwrap() + h.transpose() * r_inv * h;
+        let expect = info.try_inverse().unwrap();
+        assert!((p - expect).norm() < 1e-13, "{p} {expect}");
+    }
+
+    #[test]
+    fn gate_rejects_and_leaves_covariance() {
+        let p0 = Matrix3::identity();
+        let mut p = p0;
+        let h = SMatrix::<f64, 1, 3>::new(1.0, 0.0, 0.0);
+        // S = 2, r = 10: NIS = 50 > 9.
+        let res = update(
+            &mut p,
+            &h,
+            &SVector::<f64, 1>::new(1.0),
+            &SVector::<f64, 1>::new(10.0),
+            Some(9.0),
+        );
+        assert!(matches!(res, Err(UpdateRejection::Gated { nis }) if (nis - 50.0).abs() < 1e-12));
+        assert_eq!(p, p0);
+        // A non-finite innovation is refused as numerical.
+        let res = update(
+            &mut p,
+            &h,
+            &SVector::<f64, 1>::new(1.0),
+            &SVector::<f64, 1>::new(f64::NAN),
+            None,
+        );
+        assert_eq!(res.unwrap_err(), UpdateRejection::Numerical);
+        assert_eq!(p, p0);
+    }
+
+    #[test]
+    fn low_pass_step_response() {
+        // After n steps of a unit step, y = 1 − βⁿ; with T_f = 3 s, Δt = 0.01 s, n = 300:
+        // β³⁰⁰ = (3/3.01)³⁰⁰ ≈ e^{−0.997} ≈ 0.369.
+        let mut lp = LowPass::new(3.0, Vector3::zeros());
+        for _ in 0..300 {
+            lp.step(Vector3::new(1.0, 2.0, 0.0), 0.01);
+        }
+        let beta: f64 = 3.0 / 3.01;
+        let expect = 1.0 - beta.powi(300);
+        assert!((lp.value().x - expect).abs() < 1e-12);
+        assert!((lp.value().y - 2.0 * expect).abs() < 1e-12);
+        // Zero time constant and zero step: output passes through / holds.
+        let mut lp = LowPass::new(0.0, 1.0);
+        assert_eq!(lp.step(5.0, 0.0), 1.0);
+        assert_eq!(lp.step(5.0, 0.01), 5.0);
+    }
+}

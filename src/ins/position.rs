@@ -1,0 +1,742 @@
+//! Position filter with GNSS (author_impl §1.6, `filter_gps01`), the GNSS-phase estimates of
+//! the pressure offset and the low-frequency wind (§1.6), and the GNSS-denied propagation
+//! (§1.7, `filter_pos` + `filter_pos02B`).
+//!
+//! **GNSS filter.** Nominal state: geodetic position, NED velocity `v_n`, specific force
+//! `f_ib_b`, accelerometer error `E_acc`. Process (explicit Euler as the authors):
+//! `ṗ = geodetic_rates(v)`, `v̇ = C_nb f + g − (2 w_ie + w_en) × v`, `ḟ = 0`, `Ė_acc = 0`.
+//! Observations: every IMU step `f̃ = f + E_acc` (fast), and at each fix GNSS velocity and
+//! position (slow; the authors' dual-rate EKF). The authors' filter keeps (λ, φ, h) as
+//! additive states; here the 12 error states are `[δp_NED (m), δv, δf, δE_acc]`, a diagonal
+//! change of variables (`δp_N = (M+h)δφ`, `δp_E = (N+h)cos φ δλ`, `δp_D = −δh`) that makes
+//! the position covariance metric and well conditioned. `A` is the authors' plus the Coriolis
+//! term in `A_vv = −[2 w_ie + w_en]×`; `F = expm(AΔt)` is evaluated in closed form (series in
+//! `Ω = [2 w_ie + w_en]×` up to `Ω²`; error `O((|Ω|Δt)³)` ≈ 1e-18).
+//!
+//! **GNSS phase.** Every step `Δp = LPF_3s(Δp(ΔT̂, Ĥp, H(ĥ)))` and
+//! `v_lf = LPF_3s(v̂ − C_nb v_TAS^b(V̂, α̂, β̂))`, both initialised with their first raw value.
+//!
+//! **GNSS-denied.** The 6-state EKF `[f_ib_b, E_acc]` (`F = I`, `y = f̃`, `H = [I I]`) starts
+//! from the GNSS filter's blocks; Δp and the wind are frozen; `v_n = v_lf + C_nb v_TAS^b`;
+//! `h = h(Hp, ΔT̂, Δp)`; latitude and longitude are Euler-integrated with the previous step's
+//! radii. Covariances: velocity = frozen-wind covariance + the air-relative velocity's
+//! (attitude and air-data covariances mapped through `C_nb v_TAS^b`); horizontal position =
+//! the covariance of `[δp, δw]` with `δp' = δp + Δt (δw + δv_air)` (the frozen wind error is
+//! a random constant, so σ grows linearly); vertical = the barometric altitude's first-order
+//! variance from `Hp`, `ΔT` and the frozen `Δp`.
+
+use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+
+use super::air_data;
+use super::config::PositionFilterConfig;
+use super::ekf::{self, LowPass, UpdateRejection};
+use crate::env::atmosphere::{self, AtmosphereOffsets};
+use crate::math::so3;
+use crate::math::wgs84::{self, Geodetic};
+use crate::sensors::GnssFix;
+
+/// Number of error states of the GNSS filter.
+pub(crate) const NX: usize = 12;
+/// Offset of the NED position error, m.
+const P: usize = 0;
+/// Offset of the velocity error, m/s.
+const V: usize = 3;
+/// Offset of the specific-force error, m/s².
+const F: usize = 6;
+/// Offset of the accelerometer-error error, m/s².
+const EA: usize = 9;
+
+/// Meridian and prime-vertical radii plus height, `(M + h, N + h)`, m.
+fn radii_h(pos: &Geodetic) -> (f64, f64) {
+    (
+        wgs84::radius_meridian_m(pos.lat_rad) + pos.h_m,
+        wgs84::radius_prime_vertical_m(pos.lat_rad) + pos.h_m,
+    )
+}
+
+/// Move `pos` by a small NED displacement (m).
+fn displace(pos: &mut Geodetic, d_ned_m: &Vector3<f64>) {
+    let (m_h, n_h) = radii_h(pos);
+    let lat = pos.lat_rad;
+    pos.lat_rad += d_ned_m.x / m_h;
+    pos.lon_rad += d_ned_m.y / (n_h * lat.cos());
+    pos.h_m -= d_ned_m.z;
+}
+
+/// Small NED displacement (m) from `from` to `to` (first order; ≈ 1.6 mm error at 100 m).
+fn ned_offset_m(from: &Geodetic, to: &Geodetic) -> Vector3<f64> {
+    let (m_h, n_h) = radii_h(from);
+    let dlon = (to.lon_rad - from.lon_rad + std::f64::consts::PI)
+        .rem_euclid(2.0 * std::f64::consts::PI)
+        - std::f64::consts::PI;
+    Vector3::new(
+        (to.lat_rad - from.lat_rad) * m_h,
+        dlon * n_h * from.lat_rad.cos(),
+        -(to.h_m - from.h_m),
+    )
+}
+
+/// Air-relative velocity in body axes `V·[cos α cos β, sin β, sin α cos β]` and its Jacobian
+/// with respect to `(V, α, β)`.
+pub(crate) fn v_tas_b(tas_mps: f64, aoa_rad: f64, aos_rad: f64) -> (Vector3<f64>, Matrix3<f64>) {
+    let (sa, ca) = aoa_rad.sin_cos();
+    let (sb, cb) = aos_rad.sin_cos();
+    let v = Vector3::new(ca * cb, sb, sa * cb);
+    let j = Matrix3::new(
+        ca * cb,
+        -tas_mps * sa * cb,
+        -tas_mps * ca * sb,
+        sb,
+        0.0,
+        tas_mps * cb,
+        sa * cb,
+        tas_mps * ca * cb,
+        -tas_mps * sa * sb,
+    );
+    (v * tas_mps, j)
+}
+
+/// Air-relative velocity `C_nb v_TAS^b` in NED and its covariance from the attitude covariance
+/// (body tangent, right perturbation) and the air-data covariance (the two filters are
+/// treated as uncorrelated).
+pub(crate) fn air_velocity_n(
+    q_nb: &UnitQuaternion<f64>,
+    p_att: &Matrix3<f64>,
+    air_x: &SVector<f64, { air_data::NX }>,
+    air_p: &SMatrix<f64, { air_data::NX }, { air_data::NX }>,
+) -> (Vector3<f64>, Matrix3<f64>) {
+    let (v_b, j_air) = v_tas_b(
+        air_x[air_data::TAS],
+        air_x[air_data::AOA],
+        air_x[air_data::AOS],
+    );
+    let c_nb = q_nb.to_rotation_matrix().into_inner();
+    // C(q ∘ Exp(δθ)) v = C v + C [δθ]× v = C v − C [v]× δθ.
+    let j_att = -c_nb * so3::skew(&v_b);
+    let j_a = c_nb * j_air;
+    let p_air = air_p.fixed_view::<3, 3>(air_data::TAS, air_data::TAS);
+    let cov = j_att * p_att * j_att.transpose() + j_a * p_air * j_a.transpose();
+    (c_nb * v_b, (cov + cov.transpose()) * 0.5)
+}
+
+/// Inputs of the GNSS filter's initialisation (author_impl §1.6 `x₀`, `P₀`).
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct PositionInit {
+    pub pos: Geodetic,
+    pub v_n: Vector3<f64>,
+    pub f_b: Vector3<f64>,
+    pub e_acc: Vector3<f64>,
+    pub e_acc_sigma: Vector3<f64>,
+}
+
+/// The 12-state GNSS position filter.
+#[derive(Debug, Clone)]
+pub(crate) struct GnssFilter {
+    pos: Geodetic,
+    v_n: Vector3<f64>,
+    f_b: Vector3<f64>,
+    e_acc: Vector3<f64>,
+    p: SMatrix<f64, NX, NX>,
+}
+
+impl GnssFilter {
+    /// Filter at the initial estimates; P₀: GNSS position and velocity variances,
+    /// `σ²_Eacc + σ²_acc,wn` for `f`, `σ²_Eacc` for `E_acc`.
+    pub fn new(cfg: &PositionFilterConfig, init: &PositionInit) -> Self {
+        let mut d = SVector::<f64, NX>::zeros();
+        d[P] = cfg.gnss_sigma_hor_m.powi(2);
+        d[P + 1] = cfg.gnss_sigma_hor_m.powi(2);
+        d[P + 2] = cfg.gnss_sigma_ver_m.powi(2);
+        for i in 0..3 {
+            d[V + i] = cfg.gnss_sigma_vel_mps.powi(2);
+            d[F + i] = init.e_acc_sigma[i].powi(2) + cfg.r_accel_m2ps4;
+            d[EA + i] = init.e_acc_sigma[i].powi(2);
+        }
+        Self {
+            pos: init.pos,
+            v_n: init.v_n,
+            f_b: init.f_b,
+            e_acc: init.e_acc,
+            p: SMatrix::from_diagonal(&d),
+        }
+    }
+
+    /// Time update over `dt_s` with the current attitude and `Q̃·q_scale`.
+    pub fn predict(
+        &mut self,
+        cfg: &PositionFilterConfig,
+        q_nb: &UnitQuaternion<f64>,
+        dt_s: f64,
+        q_scale: f64,
+    ) {
+        let w_ie = wgs84::omega_ie_n(self.pos.lat_rad);
+        let w_en = wgs84::omega_en_n(&self.pos, &self.v_n);
+        let w = w_ie * 2.0 + w_en;
+        let c_nb = q_nb.to_rotation_matrix().into_inner();
+        let v_dot = c_nb * self.f_b + wgs84::gravity_ned_mps2(&self.pos) - w.cross(&self.v_n);
+        let rates = wgs84::geodetic_rates(&self.pos, &self.v_n);
+        self.pos.lat_rad += rates.x * dt_s;
+        self.pos.lon_rad += rates.y * dt_s;
+        self.pos.h_m += rates.z * dt_s;
+        self.v_n += v_dot * dt_s;
+        // expm(AΔt) with A_pv = I, A_vv = −Ω, A_vf = C: series in Ω, truncated after Ω², so
+        // the error is O((|Ω|Δt)³) ≈ (1.5e-4 rad/s · 0.01 s)³ ≈ 3e-18.
+        let om = so3::skew(&w);
+        let eye = Matrix3::identity();
+        let om2 = om * om;
+        let (dt2, dt3, dt4) = (dt_s * dt_s, dt_s.powi(3), dt_s.powi(4));
+        // ∫₀^Δt exp(−Ωs) ds and ∫₀^Δt ∫₀^s exp(−Ωu) du ds, to second order in Ω.
+        let int1 = eye * dt_s - om * (dt2 / 2.0) + om2 * (dt3 / 6.0);
+        let int2 = eye * (dt2 / 2.0) - om * (dt3 / 6.0) + om2 * (dt4 / 24.0);
+        let mut fm = SMatrix::<f64, NX, NX>::identity();
+        fm.fixed_view_mut::<3, 3>(P, V).copy_from(&int1);
+        fm.fixed_view_mut::<3, 3>(V, V)
+            .copy_from(&(eye - om * dt_s + om2 * (dt2 / 2.0)));
+        fm.fixed_view_mut::<3, 3>(V, F).copy_from(&(int1 * c_nb));
+        fm.fixed_view_mut::<3, 3>(P, F).copy_from(&(int2 * c_nb));
+        let mut q = SVector::<f64, NX>::zeros();
+        for i in 0..3 {
+            q[P + i] = cfg.q_position_m2 * q_scale;
+            q[V + i] = cfg.q_velocity_m2ps2 * q_scale;
+            q[F + i] = cfg.q_specific_force_m2ps4 * q_scale;
+            q[EA + i] = cfg.q_e_acc_m2ps4 * q_scale;
+        }
+        ekf::predict_covariance(&mut self.p, &fm, &q);
+    }
+
+    /// Fast update with the accelerometer: `f̃ = f + E_acc`.
+    pub fn update_accel(
+        &mut self,
+        cfg: &PositionFilterConfig,
+        accel_mps2: &Vector3<f64>,
+        r_scale: f64,
+    ) -> Result<(), UpdateRejection> {
+        let mut h = SMatrix::<f64, 3, NX>::zeros();
+        h.fixed_view_mut::<3, 3>(0, F).fill_with_identity();
+        h.fixed_view_mut::<3, 3>(0, EA).fill_with_identity();
+        let r = Vector3::repeat(cfg.r_accel_m2ps4 * r_scale);
+        let innov = accel_mps2 - (self.f_b + self.e_acc);
+        let c = ekf::update(&mut self.p, &h, &r, &innov, None)?;
+        self.apply(&c.dx);
+        Ok(())
+    }
+
+    /// Slow update with a GNSS fix taken `lag_s` before the current step (the fix position
+    /// is moved forward by its own velocity), gated on the 6-D innovation. Returns the NIS.
+    pub fn update_gnss(
+        &mut self,
+        cfg: &PositionFilterConfig,
+        fix: &GnssFix,
+        lag_s: f64,
+    ) -> Result<f64, UpdateRejection> {
+        let mut fix_pos = fix.pos;
+        let rates = wgs84::geodetic_rates(&fix.pos, &fix.v_ned_mps);
+        fix_pos.lat_rad += rates.x * lag_s;
+        fix_pos.lon_rad += rates.y * lag_s;
+        fix_pos.h_m += rates.z * lag_s;
+        let mut innov = SVector::<f64, 6>::zeros();
+        innov
+            .fixed_rows_mut::<3>(0)
+            .copy_from(&(fix.v_ned_mps - self.v_n));
+        innov
+            .fixed_rows_mut::<3>(3)
+            .copy_from(&ned_offset_m(&self.pos, &fix_pos));
+        let mut h = SMatrix::<f64, 6, NX>::zeros();
+        h.fixed_view_mut::<3, 3>(0, V).fill_with_identity();
+        h.fixed_view_mut::<3, 3>(3, P).fill_with_identity();
+        // The receiver's σ when it reports a larger one than configured.
+        let larger = |cfg_sigma: f64, reported: f64| {
+            if reported.is_finite() && reported > cfg_sigma {
+                reported
+            } else {
+                cfg_sigma
+            }
+        };
+        let s_vel = larger(cfg.gnss_sigma_vel_mps, fix.sigma_vel_mps);
+        let s_hor = larger(cfg.gnss_sigma_hor_m, fix.sigma_hor_m);
+        let s_ver = larger(cfg.gnss_sigma_ver_m, fix.sigma_ver_m);
+        let r = SVector::<f64, 6>::from([
+            s_vel * s_vel,
+            s_vel * s_vel,
+            s_vel * s_vel,
+            s_hor * s_hor,
+            s_hor * s_hor,
+            s_ver * s_ver,
+        ]);
+        let c = ekf::update(&mut self.p, &h, &r, &innov, Some(cfg.gnss_gate_chi2))?;
+        self.apply(&c.dx);
+        Ok(c.nis)
+    }
+
+    fn apply(&mut self, dx: &SVector<f64, NX>) {
+        displace(&mut self.pos, &dx.fixed_rows::<3>(P).into_owned());
+        self.v_n += dx.fixed_rows::<3>(V);
+        self.f_b += dx.fixed_rows::<3>(F);
+        self.e_acc += dx.fixed_rows::<3>(EA);
+    }
+
+    /// Geodetic position.
+    pub fn pos(&self) -> Geodetic {
+        self.pos
+    }
+    /// NED ground velocity, m/s.
+    pub fn v_n(&self) -> Vector3<f64> {
+        self.v_n
+    }
+    /// Specific force estimate, body, m/s².
+    pub fn f_b(&self) -> Vector3<f64> {
+        self.f_b
+    }
+    /// Accelerometer error estimate, m/s².
+    pub fn e_acc(&self) -> Vector3<f64> {
+        self.e_acc
+    }
+    /// Error-state covariance `[δp_NED, δv, δf, δE_acc]` (tests).
+    #[cfg(test)]
+    pub fn covariance(&self) -> &SMatrix<f64, NX, NX> {
+        &self.p
+    }
+    /// NED position covariance, m².
+    pub fn position_cov(&self) -> Matrix3<f64> {
+        self.p.fixed_view::<3, 3>(P, P).into_owned()
+    }
+    /// NED velocity covariance, (m/s)².
+    pub fn velocity_cov(&self) -> Matrix3<f64> {
+        self.p.fixed_view::<3, 3>(V, V).into_owned()
+    }
+}
+
+/// Low-pass estimates of the pressure offset and the low-frequency wind while GNSS is
+/// available, with their (first-order, low-passed) variances.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct GnssPhaseEstimates {
+    delta_p_pa: LowPass<f64>,
+    delta_p_var: LowPass<f64>,
+    wind_n: LowPass<Vector3<f64>>,
+    wind_cov: LowPass<Matrix3<f64>>,
+}
+
+/// Raw pressure offset from the GNSS-filter altitude and its first-order variance.
+///
+/// `Δp = p(Hp_MSL) − p₀` with `G(Hp_MSL) = G(Hp) − H(h)` (`G` the geopotential integral of
+/// `atmosphere`, slope `G' = T/T_ISA`): `∂Hp_MSL/∂H = −1/G'(Hp_MSL)`,
+/// `∂Hp_MSL/∂Hp = G'(Hp)/G'(Hp_MSL)`, `∂Δp/∂Hp_MSL = dp/dHp(Hp_MSL)`, `dH/dh ≈ 1`.
+fn raw_delta_p(hp_m: f64, var_hp: f64, h_m: f64, var_h: f64, delta_t_k: f64) -> (f64, f64) {
+    let geopotential = atmosphere::geopotential_from_geometric_m(h_m);
+    let dp = atmosphere::delta_p_pa(hp_m, geopotential, delta_t_k);
+    let hp_msl = atmosphere::pressure_altitude_m(atmosphere::P0_PA + dp);
+    let off = AtmosphereOffsets {
+        delta_t_k,
+        delta_p_pa: dp,
+    };
+    let g_msl = atmosphere::geopotential_derivative(hp_msl, &off);
+    let g_hp = atmosphere::geopotential_derivative(hp_m, &off);
+    let dpdm = atmosphere::pressure_derivative_pa_per_m(hp_msl);
+    let d_dh = dpdm / g_msl;
+    let d_dhp = dpdm * g_hp / g_msl;
+    (dp, d_dh * d_dh * var_h + d_dhp * d_dhp * var_hp)
+}
+
+impl GnssPhaseEstimates {
+    /// Start both filters at their first raw values.
+    #[allow(clippy::too_many_arguments)]
+    pub fn new(
+        tau_s: f64,
+        hp_m: f64,
+        var_hp: f64,
+        h_m: f64,
+        var_h: f64,
+        delta_t_k: f64,
+        wind_n: Vector3<f64>,
+        wind_cov: Matrix3<f64>,
+    ) -> Self {
+        let (dp, dp_var) = raw_delta_p(hp_m, var_hp, h_m, var_h, delta_t_k);
+        Self {
+            delta_p_pa: LowPass::new(tau_s, dp),
+            delta_p_var: LowPass::new(tau_s, dp_var),
+            wind_n: LowPass::new(tau_s, wind_n),
+            wind_cov: LowPass::new(tau_s, wind_cov),
+        }
+    }
+
+    /// One step of `dt_s` with the raw inputs. Non-finite raw values are skipped (the filters
+    /// hold), so a transient numerical problem cannot poison the frozen values.
+    #[allow(clippy::too_many_arguments)]
+    pub fn step(
+        &mut self,
+        dt_s: f64,
+        hp_m: f64,
+        var_hp: f64,
+        h_m: f64,
+        var_h: f64,
+        delta_t_k: f64,
+        wind_n: Vector3<f64>,
+        wind_cov: Matrix3<f64>,
+    ) {
+        let (dp, dp_var) = raw_delta_p(hp_m, var_hp, h_m, var_h, delta_t_k);
+        if dp.is_finite() && dp_var.is_finite() {
+            self.delta_p_pa.step(dp, dt_s);
+            self.delta_p_var.step(dp_var, dt_s);
+        }
+        if wind_n.iter().chain(wind_cov.iter()).all(|v| v.is_finite()) {
+            self.wind_n.step(wind_n, dt_s);
+            self.wind_cov.step(wind_cov, dt_s);
+        }
+    }
+
+    /// Pressure offset Δp, Pa, and its variance, Pa².
+    pub fn delta_p(&self) -> (f64, f64) {
+        (self.delta_p_pa.value(), self.delta_p_var.value())
+    }
+
+    /// Low-frequency wind `v_lf_n`, m/s, and its covariance.
+    pub fn wind(&self) -> (Vector3<f64>, Matrix3<f64>) {
+        (self.wind_n.value(), self.wind_cov.value())
+    }
+}
+
+/// Barometric geometric altitude `h(Hp, ΔT, Δp)` and its partial derivatives
+/// `(∂h/∂Hp, ∂h/∂ΔT, ∂h/∂Δp)` (author_impl §3.1–3.2).
+///
+/// `H` is linear in ΔT, so `∂H/∂ΔT = H(ΔT = 1) − H(ΔT = 0)` exactly;
+/// `∂H/∂Hp = G'(Hp)`, `∂H/∂Δp = −G'(Hp_MSL)/(dp/dHp)(Hp_MSL)`; `dh/dH = (R/(R − H))²`.
+pub(crate) fn baro_altitude(hp_m: f64, delta_t_k: f64, delta_p_pa: f64) -> (f64, Vector3<f64>) {
+    let off = AtmosphereOffsets {
+        delta_t_k,
+        delta_p_pa,
+    };
+    let geo = atmosphere::geopotential_from_pressure_altitude_m(hp_m, &off);
+    let h = atmosphere::geometric_from_geopotential_m(geo);
+    let r = atmosphere::R_GEOPOTENTIAL_M;
+    let dh_dgeo = (r / (r - geo)).powi(2);
+    let at = |dt: f64| {
+        atmosphere::geopotential_from_pressure_altitude_m(
+            hp_m,
+            &AtmosphereOffsets {
+                delta_t_k: dt,
+                delta_p_pa,
+            },
+        )
+    };
+    let d_dt = at(1.0) - at(0.0);
+    let hp_msl = atmosphere::pressure_altitude_m(atmosphere::P0_PA + delta_p_pa);
+    let d_dp = -atmosphere::geopotential_derivative(hp_msl, &off)
+        / atmosphere::pressure_derivative_pa_per_m(hp_msl);
+    let d_dhp = atmosphere::geopotential_derivative(hp_m, &off);
+    (h, Vector3::new(d_dhp, d_dt, d_dp) * dh_dgeo)
+}
+
+/// The GNSS-denied navigation (author_impl §1.7, variant 02B).
+#[derive(Debug, Clone)]
+pub(crate) struct DeniedNav {
+    /// 6-state EKF `[f_ib_b, E_acc]`.
+    f_b: Vector3<f64>,
+    e_acc: Vector3<f64>,
+    p6: SMatrix<f64, 6, 6>,
+    pos: Geodetic,
+    v_n: Vector3<f64>,
+    wind_n: Vector3<f64>,
+    wind_cov: Matrix3<f64>,
+    delta_p_pa: f64,
+    delta_p_var: f64,
+    /// Covariance of `[δp_NED, δw_NED]`; its down position block is replaced by the
+    /// barometric variance when reported.
+    p_pw: SMatrix<f64, 6, 6>,
+    h_var: f64,
+    v_cov: Matrix3<f64>,
+}
+
+impl DeniedNav {
+    /// Switch from the GNSS phase: the 6-state EKF takes the GNSS filter's `[f, E_acc]` blocks,
+    /// the wind and Δp freeze at their low-pass values. The horizontal wind variance gets the
+    /// configured unmodelled error added.
+    pub fn new(cfg: &PositionFilterConfig, gnss: &GnssFilter, est: &GnssPhaseEstimates) -> Self {
+        let (wind_n, mut wind_cov) = est.wind();
+        let extra = cfg.wind_bias_sigma_mps.powi(2);
+        wind_cov[(0, 0)] += extra;
+        wind_cov[(1, 1)] += extra;
+        let (delta_p_pa, delta_p_var) = est.delta_p();
+        let mut p_pw = SMatrix::<f64, 6, 6>::zeros();
+        p_pw.fixed_view_mut::<3, 3>(0, 0)
+            .copy_from(&gnss.position_cov());
+        p_pw.fixed_view_mut::<3, 3>(3, 3).copy_from(&wind_cov);
+        Self {
+            f_b: gnss.f_b,
+            e_acc: gnss.e_acc,
+            p6: gnss.p.fixed_view::<6, 6>(F, F).into_owned(),
+            pos: gnss.pos,
+            v_n: gnss.v_n,
+            wind_n,
+            wind_cov,
+            delta_p_pa,
+            delta_p_var,
+            p_pw,
+            h_var: gnss.p[(P + 2, P + 2)],
+            v_cov: gnss.velocity_cov(),
+        }
+    }
+
+    /// The 6-state EKF step: predict (`F = I`) and update with the accelerometer.
+    pub fn filter_accel(
+        &mut self,
+        cfg: &PositionFilterConfig,
+        accel_mps2: &Vector3<f64>,
+        q_scale: f64,
+        r_scale: f64,
+    ) -> Result<(), UpdateRejection> {
+        let q = SVector::<f64, 6>::from([
+            cfg.q_specific_force_m2ps4 * q_scale,
+            cfg.q_specific_force_m2ps4 * q_scale,
+            cfg.q_specific_force_m2ps4 * q_scale,
+            cfg.q_e_acc_m2ps4 * q_scale,
+            cfg.q_e_acc_m2ps4 * q_scale,
+            cfg.q_e_acc_m2ps4 * q_scale,
+        ]);
+        for i in 0..6 {
+            self.p6[(i, i)] += q[i];
+        }
+        let mut h = SMatrix::<f64, 3, 6>::zeros();
+        h.fixed_view_mut::<3, 3>(0, 0).fill_with_identity();
+        h.fixed_view_mut::<3, 3>(0, 3).fill_with_identity();
+        let r = Vector3::repeat(cfg.r_accel_m2ps4 * r_scale);
+        let innov = accel_mps2 - (self.f_b + self.e_acc);
+        let c = ekf::update(&mut self.p6, &h, &r, &innov, None)?;
+        self.f_b += c.dx.fixed_rows::<3>(0);
+        self.e_acc += c.dx.fixed_rows::<3>(3);
+        Ok(())
+    }
+
+    /// Dead-reckoning step: ground velocity from the frozen wind and the air-relative
+    /// velocity, altitude from the barometer, horizontal position integrated over `n_sub`
+    /// sub-steps of `dt_sub_s`.
+    #[allow(clippy::too_many_arguments)]
+    pub fn propagate(
+        &mut self,
+        cfg: &PositionFilterConfig,
+        v_air_n: &Vector3<f64>,
+        v_air_cov: &Matrix3<f64>,
+        hp_m: f64,
+        delta_t_k: f64,
+        air_t_hp_cov: &nalgebra::Matrix2<f64>,
+        dt_sub_s: f64,
+        n_sub: u32,
+        q_scale_sub: f64,
+    ) {
+        self.v_n = self.wind_n + v_air_n;
+        self.v_cov = self.wind_cov + v_air_cov;
+        // Altitude: h(Hp, ΔT(T, Hp), Δp); ∂/∂T = ∂h/∂ΔT, ∂/∂Hp = ∂h/∂Hp − β_T ∂h/∂ΔT.
+        let (h, d) = baro_altitude(hp_m, delta_t_k, self.delta_p_pa);
+        let slope = if hp_m > atmosphere::HP_TROPOPAUSE_M {
+            0.0
+        } else {
+            atmosphere::BETA_T_KPM
+        };
+        let j = nalgebra::RowVector2::new(d.y, d.x - slope * d.y);
+        let h_var = (j * air_t_hp_cov * j.transpose())[(0, 0)] + d.z * d.z * self.delta_p_var;
+        if h.is_finite() && h_var.is_finite() {
+            self.pos.h_m = h;
+            self.h_var = h_var;
+        }
+        // Horizontal: previous-step radii and latitude, current height (author_impl §1.7).
+        let (m, n) = (
+            wgs84::radius_meridian_m(self.pos.lat_rad),
+            wgs84::radius_prime_vertical_m(self.pos.lat_rad),
+        );
+        let mut phi = SMatrix::<f64, 6, 6>::identity();
+        phi.fixed_view_mut::<3, 3>(0, 3).fill_with_identity();
+        phi.fixed_view_mut::<3, 3>(0, 3).scale_mut(dt_sub_s);
+        for _ in 0..n_sub {
+            let lat = self.pos.lat_rad;
+            self.pos.lat_rad += dt_sub_s * self.v_n.x / (m + self.pos.h_m);
+            self.pos.lon_rad += dt_sub_s * self.v_n.y / ((n + self.pos.h_m) * lat.cos());
+            let mut p_new = phi * self.p_pw * phi.transpose();
+            let add = v_air_cov * (dt_sub_s * dt_sub_s);
+            for r in 0..3 {
+                for c in 0..3 {
+                    p_new[(r, c)] += add[(r, c)];
+                }
+                p_new[(r, r)] += cfg.q_position_m2 * q_scale_sub;
+            }
+            ekf::symmetrize(&mut p_new);
+            self.p_pw = p_new;
+        }
+    }
+
+    /// Geodetic position.
+    pub fn pos(&self) -> Geodetic {
+        self.pos
+    }
+    /// NED ground velocity, m/s.
+    pub fn v_n(&self) -> Vector3<f64> {
+        self.v_n
+    }
+    /// Specific force estimate, m/s².
+    pub fn f_b(&self) -> Vector3<f64> {
+        self.f_b
+    }
+    /// Accelerometer error estimate, m/s².
+    pub fn e_acc(&self) -> Vector3<f64> {
+        self.e_acc
+    }
+    /// Frozen wind and its covariance.
+    pub fn wind(&self) -> (Vector3<f64>, Matrix3<f64>) {
+        (self.wind_n, self.wind_cov)
+    }
+    /// Frozen Δp and its variance.
+    pub fn delta_p(&self) -> (f64, f64) {
+        (self.delta_p_pa, self.delta_p_var)
+    }
+    /// NED position covariance: horizontal from the dead-reckoning model, vertical from the
+    /// barometric altitude (no horizontal–vertical correlation), m².
+    pub fn position_cov(&self) -> Matrix3<f64> {
+        let mut c = Matrix3::zeros();
+        c.fixed_view_mut::<2, 2>(0, 0)
+            .copy_from(&self.p_pw.fixed_view::<2, 2>(0, 0));
+        c[(2, 2)] = self.h_var;
+        c
+    }
+    /// NED velocity covariance, (m/s)².
+    pub fn velocity_cov(&self) -> Matrix3<f64> {
+        self.v_cov
+    }
+    /// Covariance of the 6-state `[f, E_acc]` EKF (tests).
+    #[cfg(test)]
+    pub fn accel_cov(&self) -> &SMatrix<f64, 6, 6> {
+        &self.p6
+    }
+    /// Covariance of `[δp_NED, δw_NED]` of the dead reckoning (tests).
+    #[cfg(test)]
+    pub fn dead_reckoning_cov(&self) -> &SMatrix<f64, 6, 6> {
+        &self.p_pw
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn init() -> PositionInit {
+        PositionInit {
+            pos: Geodetic {
+                lat_rad: 0.78,
+                lon_rad: -1.57,
+                h_m: 1500.0,
+            },
+            v_n: Vector3::new(20.0, -15.0, 1.0),
+            f_b: Vector3::new(0.2, 0.1, -9.8),
+            e_acc: Vector3::new(0.1, -0.1, 0.05),
+            e_acc_sigma: Vector3::repeat(1e-3),
+        }
+    }
+
+    #[test]
+    fn transition_matches_matrix_exponential() {
+        let cfg = PositionFilterConfig {
+            q_position_m2: 0.0,
+            q_velocity_m2ps2: 0.0,
+            q_specific_force_m2ps4: 0.0,
+            q_e_acc_m2ps4: 0.0,
+            ..PositionFilterConfig::default()
+        };
+        let mut f = GnssFilter::new(&cfg, &init());
+        let mut p = SMatrix::<f64, NX, NX>::identity();
+        for i in 0..NX {
+            for j in 0..NX {
+                p[(i, j)] += 0.2 / (1.0 + (i as f64 - j as f64).abs());
+            }
+        }
+        f.p = p;
+        let q_nb = so3::from_euler_zyx(0.4, 0.1, -0.2);
+        let dt = 0.05;
+        let w = wgs84::omega_ie_n(f.pos.lat_rad) * 2.0 + wgs84::omega_en_n(&f.pos, &f.v_n);
+        let mut a = SMatrix::<f64, NX, NX>::zeros();
+        a.fixed_view_mut::<3, 3>(P, V).fill_with_identity();
+        a.fixed_view_mut::<3, 3>(V, V).copy_from(&(-so3::skew(&w)));
+        a.fixed_view_mut::<3, 3>(V, F)
+            .copy_from(&q_nb.to_rotation_matrix().into_inner());
+        let big_f = (a * dt).exp();
+        let expect = big_f * p * big_f.transpose();
+        f.predict(&cfg, &q_nb, dt, 1.0);
+        // Closed form is exact up to (|Ω|Δt)³ ≈ (1.5e-4·0.05)³ ≈ 4e-16 relative; the products
+        // of 12×12 matrices round at ~1e-15 relative.
+        assert!(
+            (f.p - expect).norm() < 1e-13 * expect.norm(),
+            "{}",
+            f.p - expect
+        );
+    }
+
+    #[test]
+    fn air_velocity_jacobians_match_finite_differences() {
+        let (v0, j) = v_tas_b(30.0, 0.06, -0.03);
+        let e = 1e-6;
+        for k in 0..3 {
+            let mut a = [30.0, 0.06, -0.03];
+            let mut b = a;
+            a[k] += e;
+            b[k] -= e;
+            let fd = (v_tas_b(a[0], a[1], a[2]).0 - v_tas_b(b[0], b[1], b[2]).0) / (2.0 * e);
+            // Truncation e²/6·|v'''| ≤ 30e-12; rounding ε·30/e ≈ 3e-9.
+            assert!((fd - j.column(k)).norm() < 1e-8, "{k}");
+        }
+        assert!((v0.norm() - 30.0).abs() < 1e-12);
+        // Attitude Jacobian of C_nb v_b (right perturbation) through air_velocity_n.
+        let q = so3::from_euler_zyx(1.0, 0.1, 0.3);
+        let mut x = SVector::<f64, { air_data::NX }>::zeros();
+        x[air_data::TAS] = 30.0;
+        x[air_data::AOA] = 0.06;
+        x[air_data::AOS] = -0.03;
+        let p_air = SMatrix::<f64, { air_data::NX }, { air_data::NX }>::zeros();
+        for k in 0..3 {
+            let mut d = Vector3::zeros();
+            d[k] = 1.0;
+            let p_att = d * d.transpose();
+            let (_, cov) = air_velocity_n(&q, &p_att, &x, &p_air);
+            let fd = (so3::plus(&q, &(d * e)) * v0 - so3::plus(&q, &(-d * e)) * v0) / (2.0 * e);
+            // cov = J e_k e_kᵀ Jᵀ = col·colᵀ.
+            assert!((cov - fd * fd.transpose()).norm() < 1e-6, "{k}");
+        }
+    }
+
+    #[test]
+    fn baro_altitude_derivatives_match_finite_differences() {
+        let (hp, dt, dp) = (2500.0, 7.0, -900.0);
+        let (h0, d) = baro_altitude(hp, dt, dp);
+        let fd = |f: &dyn Fn(f64) -> f64, e: f64| (f(e) - f(-e)) / (2.0 * e);
+        let d_hp = fd(&|e| baro_altitude(hp + e, dt, dp).0, 1e-2);
+        let d_dt = fd(&|e| baro_altitude(hp, dt + e, dp).0, 1e-3);
+        let d_dp = fd(&|e| baro_altitude(hp, dt, dp + e).0, 1e-1);
+        // h is smooth on scales of km, K and kPa: truncation ≪ 1e-6, rounding ≈ ε·h/e ≈ 3e-11/e.
+        assert!((d.x - d_hp).abs() < 1e-7, "{} {d_hp}", d.x);
+        assert!((d.y - d_dt).abs() < 1e-6, "{} {d_dt}", d.y);
+        assert!((d.z - d_dp).abs() < 1e-7, "{} {d_dp}", d.z);
+        // Consistency with the atmosphere module.
+        let off = AtmosphereOffsets {
+            delta_t_k: dt,
+            delta_p_pa: dp,
+        };
+        assert!((h0 - atmosphere::geometric_from_pressure_altitude_m(hp, &off)).abs() < 1e-9);
+    }
+
+    #[test]
+    fn raw_delta_p_inverts_baro_altitude_and_its_variance_matches() {
+        let (hp, dt, dp) = (2000.0, -5.0, 1200.0);
+        let (h, d) = baro_altitude(hp, dt, dp);
+        let (dp_back, var) = raw_delta_p(hp, 0.0, h, 1.0, dt);
+        assert!((dp_back - dp).abs() < 1e-6, "{dp_back}");
+        // 1 m² of altitude variance ↔ (∂Δp/∂h)² = 1/(∂h/∂Δp)² (dH/dh ≈ 1 to 5e-4).
+        let expect = 1.0 / (d.z * d.z);
+        assert!((var - expect).abs() < 2e-3 * expect, "{var} {expect}");
+    }
+
+    #[test]
+    fn ned_offset_and_displace_are_inverse() {
+        let mut p = init().pos;
+        let from = p;
+        let d = Vector3::new(80.0, -60.0, 5.0);
+        displace(&mut p, &d);
+        let back = ned_offset_m(&from, &p);
+        // Second-order terms ≈ |d|²/R ≈ 1e4/6.4e6 ≈ 1.6e-3 m.
+        assert!((back - d).norm() < 2e-3, "{back}");
+    }
+}
