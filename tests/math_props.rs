@@ -13,6 +13,7 @@
 
 use std::f64::consts::{FRAC_PI_2, PI};
 
+use ianav::math::angle::wrap_pi;
 use ianav::math::{se3, so3, wgs84};
 use nalgebra::{Isometry3, Matrix3, Matrix6, Quaternion, UnitQuaternion, Vector3, Vector6};
 use proptest::prelude::*;
@@ -132,12 +133,6 @@ fn quat_dist(a: &UnitQuaternion<f64>, b: &UnitQuaternion<f64>) -> f64 {
         .min((a.coords + b.coords).norm())
 }
 
-/// Wraps an angle difference to (−π, π].
-fn wrap(a: f64) -> f64 {
-    let w = (a + PI).rem_euclid(2.0 * PI) - PI;
-    if w == -PI { PI } else { w }
-}
-
 // ------------------------------------------------------------------------------------------
 // SO(3)
 // ------------------------------------------------------------------------------------------
@@ -231,9 +226,9 @@ proptest! {
     ) {
         // ψ and ξ are conditioned as 1/cos θ ≤ 100: a few ε·100 ≈ 1e-13.
         let e = so3::euler_zyx(&so3::from_euler_zyx(yaw, pitch, bank));
-        prop_assert!(wrap(e.x - yaw).abs() < 1e-12, "{e:?}");
+        prop_assert!(wrap_pi(e.x - yaw).abs() < 1e-12, "{e:?}");
         prop_assert!((e.y - pitch).abs() < 1e-12, "{e:?}");
-        prop_assert!(wrap(e.z - bank).abs() < 1e-12, "{e:?}");
+        prop_assert!(wrap_pi(e.z - bank).abs() < 1e-12, "{e:?}");
     }
 
     #[test]
@@ -355,7 +350,7 @@ proptest! {
         prop_assert!((back.h_m - h).abs() < 1e-7, "{g:?} {back:?}");
         // Longitude: compare the arc on the parallel (undefined on the axis itself).
         let rho = p.xy().norm();
-        prop_assert!(rho * wrap(back.lon_rad - lon).abs() < 1e-7, "{g:?} {back:?}");
+        prop_assert!(rho * wrap_pi(back.lon_rad - lon).abs() < 1e-7, "{g:?} {back:?}");
         prop_assert!((wgs84::geodetic_to_ecef(&back) - p).norm() < 1e-7);
     }
 
@@ -377,7 +372,7 @@ proptest! {
         let gm = wgs84::ecef_to_geodetic(&(p - v_e * dt));
         let fd = Vector3::new(
             (gp.lat_rad - gm.lat_rad) / (2.0 * dt),
-            wrap(gp.lon_rad - gm.lon_rad) / (2.0 * dt),
+            wrap_pi(gp.lon_rad - gm.lon_rad) / (2.0 * dt),
             (gp.h_m - gm.h_m) / (2.0 * dt),
         );
         let rates = wgs84::geodetic_rates(&pos, &v);

@@ -3,16 +3,12 @@
 //! and scenario #2 (500 s: up to eight turns in constant weather and wind). Every stochastic
 //! parameter is drawn from its own seeded stream.
 
+use ianav::math::angle::wrap_180_deg;
 use serde::{Deserialize, Serialize};
 
 use crate::control::{AileronTarget, ElevatorTarget, Operation, Trigger};
 use crate::env::{OffsetsConfig, WindConfig};
 use crate::rng::{self, Stream};
-
-/// Longest a redraw loop may spin before it takes the documented fallback. With the paper's
-/// distributions every loop accepts with probability > 0.3 per draw, so reaching this means a
-/// misconfigured scenario, not bad luck.
-const MAX_REDRAWS: usize = 10_000;
 
 /// Errors of scenario configuration.
 #[derive(Debug, thiserror::Error)]
@@ -368,35 +364,16 @@ pub struct Mission {
     pub operations: Vec<Operation>,
 }
 
-fn wrap_deg(mut angle_deg: f64) -> f64 {
-    angle_deg = (angle_deg + 180.0).rem_euclid(360.0) - 180.0;
-    if angle_deg <= -180.0 {
-        angle_deg + 360.0
-    } else {
-        angle_deg
-    }
-}
-
-/// Draw `mean + sigma·N` until `accept` holds (or the cap is hit: then the mean).
-fn draw_until(rng: &mut Stream, mean: f64, sigma: f64, accept: impl Fn(f64) -> bool) -> f64 {
-    for _ in 0..MAX_REDRAWS {
-        let value = mean + sigma * rng::normal(rng);
-        if accept(value) {
-            return value;
-        }
-    }
-    mean
-}
-
-/// A bearing in whole degrees U_int{−179..180} differing from `from_deg` by at least `min_deg`.
+/// A bearing in whole degrees U_int{−179..180} differing from `from_deg` (whole degrees) by at
+/// least `min_deg` (redrawn; after [`rng::MAX_REDRAWS`] rejections, the opposite bearing,
+/// which differs by 180° and so satisfies any `min_deg` ≤ 180°).
 fn draw_bearing_change(rng: &mut Stream, from_deg: f64, min_deg: f64) -> f64 {
-    for _ in 0..MAX_REDRAWS {
-        let chi = rng::uniform_int(rng, -179, 180) as f64;
-        if wrap_deg(chi - from_deg).abs() >= min_deg {
-            return chi;
-        }
-    }
-    wrap_deg(from_deg + 90.0)
+    rng::redraw_until(
+        rng,
+        |r| rng::uniform_int(r, -179, 180) as f64,
+        |chi| wrap_180_deg(chi - from_deg).abs() >= min_deg,
+        wrap_180_deg(from_deg + 180.0),
+    )
 }
 
 /// A turn towards `chi_to_deg` from `chi_from_deg`: bank sign by the shortest way round, and
@@ -408,7 +385,7 @@ fn turn(
     chi_to_deg: f64,
     d: &MissionDrawConfig,
 ) -> Operation {
-    let right = wrap_deg(chi_to_deg - chi_from_deg) > 0.0;
+    let right = wrap_180_deg(chi_to_deg - chi_from_deg) > 0.0;
     let sign = if right { 1.0 } else { -1.0 };
     Operation {
         tas_mps,
@@ -417,7 +394,7 @@ fn turn(
             xi_rad: (sign * d.turn_bank_deg).to_radians(),
         },
         trigger: Trigger::Bearing {
-            chi_rad: wrap_deg(chi_to_deg - sign * d.turn_lead_deg).to_radians(),
+            chi_rad: wrap_180_deg(chi_to_deg - sign * d.turn_lead_deg).to_radians(),
         },
     }
 }
@@ -435,32 +412,69 @@ fn hold(tas_mps: f64, hp_m: f64, chi_deg: f64, trigger: Trigger) -> Operation {
 
 impl Mission {
     /// Draw the mission of one run (author_impl §6.2 draws 1–9, then §6.3 for scenario #2).
+    ///
+    /// Each constrained draw is redrawn until it satisfies its rule ([`rng::normal_until`]);
+    /// should the cap be reached (a degenerate configuration), the fallback is the acceptable
+    /// value nearest the distribution's mean, so the rule still holds whenever it can.
     pub fn draw(cfg: &ScenarioConfig, rng: &mut Stream) -> Self {
         let d = &cfg.draws;
         let (v_min, v_max) = (d.airspeed_min_mps, d.airspeed_max_mps);
         let chi_ini = rng::uniform_int(rng, -179, 180) as f64;
         let chi_end = draw_bearing_change(rng, chi_ini, d.bearing_change_min_deg);
-        let dt_tas = draw_until(rng, d.phase_mean_s, d.phase_sigma_s, |t| t >= d.phase_min_s);
-        let tas_ini = draw_until(rng, d.airspeed_mean_mps, d.airspeed_sigma_mps, |v| {
-            (v_min..=v_max).contains(&v)
-        });
-        let dv = draw_until(rng, 0.0, d.airspeed_sigma_mps, |dv| {
-            dv.abs() >= d.airspeed_change_min_mps && (v_min..=v_max).contains(&(tas_ini + dv))
-        });
+        let dt_tas = rng::normal_until(
+            rng,
+            d.phase_mean_s,
+            d.phase_sigma_s,
+            |t| t >= d.phase_min_s,
+            d.phase_mean_s.max(d.phase_min_s),
+        );
+        // The validation keeps the mean inside the band, so it is a valid fallback.
+        let tas_ini = rng::normal_until(
+            rng,
+            d.airspeed_mean_mps,
+            d.airspeed_sigma_mps,
+            |v| (v_min..=v_max).contains(&v),
+            d.airspeed_mean_mps,
+        );
+        // Fallback: the smallest allowed change towards the side with more room, which is
+        // inside the band whenever any allowed change is.
+        let dv_min = d.airspeed_change_min_mps;
+        let dv = rng::normal_until(
+            rng,
+            0.0,
+            d.airspeed_sigma_mps,
+            |dv| dv.abs() >= dv_min && (v_min..=v_max).contains(&(tas_ini + dv)),
+            if v_max - tas_ini >= tas_ini - v_min {
+                dv_min
+            } else {
+                -dv_min
+            },
+        );
         let tas_end = tas_ini + dv;
-        let dt_hp = draw_until(rng, d.phase_mean_s, d.phase_sigma_s, |t| {
-            t >= d.phase_min_s && t + dt_tas <= d.phases_max_sum_s
-        });
+        let dt_hp = rng::normal_until(
+            rng,
+            d.phase_mean_s,
+            d.phase_sigma_s,
+            |t| t >= d.phase_min_s && t + dt_tas <= d.phases_max_sum_s,
+            (d.phases_max_sum_s - dt_tas)
+                .min(d.phase_mean_s)
+                .max(d.phase_min_s),
+        );
         let hp_ini = d.hp_mean_m + d.hp_sigma_m * rng::normal(rng);
-        let dhp = draw_until(rng, 0.0, d.hp_change_sigma_m, |dh| {
-            dh.abs() >= d.hp_change_min_m
-        });
+        let dhp = rng::normal_until(
+            rng,
+            0.0,
+            d.hp_change_sigma_m,
+            |dh| dh.abs() >= d.hp_change_min_m,
+            d.hp_change_min_m,
+        );
         let hp_end = hp_ini + dhp;
-        let t_turn = draw_until(
+        let t_turn = rng::normal_until(
             rng,
             cfg.gnss_loss_s + d.turn_delay_mean_s,
             d.turn_delay_sigma_s,
             |t| t >= cfg.gnss_loss_s + d.turn_delay_min_s,
+            cfg.gnss_loss_s + d.turn_delay_mean_s.max(d.turn_delay_min_s),
         );
 
         let mut operations = vec![hold(
@@ -588,7 +602,14 @@ mod tests {
             assert!((m.tas_end_mps - m.tas_ini_mps).abs() >= 0.5);
             assert!((m.hp_end_m - m.hp_ini_m).abs() >= 100.0);
             assert!(m.t_turn_s >= 115.0);
-            let turn = wrap_deg((m.chi_turns_rad[0] - m.chi_ini_rad).to_degrees());
+            // Bearings are drawn in whole degrees: undo the rad round trip (error ~1e-14°,
+            // which a rounding wrap used to hide) before checking the change exactly.
+            let whole_deg = |rad: f64| {
+                let deg = rad.to_degrees();
+                assert!((deg - deg.round()).abs() < 1e-9, "{deg}");
+                deg.round()
+            };
+            let turn = wrap_180_deg(whole_deg(m.chi_turns_rad[0]) - whole_deg(m.chi_ini_rad));
             assert!(turn.abs() >= 10.0);
             // The bank of the turn goes the short way round.
             let AileronTarget::Bank { xi_rad } = m.operations[1].aileron else {
@@ -599,19 +620,41 @@ mod tests {
     }
 
     #[test]
+    fn degenerate_draws_fall_back_to_values_that_keep_the_rules() {
+        // σ = 0 makes every constrained draw equal its mean, which each rule rejects, so
+        // every loop hits the cap. (The validation forbids this; `Mission::draw` must still
+        // return values that keep the rules rather than the rejected means.)
+        let mut cfg = ScenarioConfig::builtin(1).unwrap();
+        let d = &mut cfg.draws;
+        d.airspeed_sigma_mps = 0.0;
+        d.hp_change_sigma_m = 0.0;
+        d.phase_sigma_s = 0.0;
+        d.phase_mean_s = d.phase_min_s - 50.0;
+        d.turn_delay_sigma_s = 0.0;
+        d.turn_delay_mean_s = d.turn_delay_min_s - 5.0;
+        // Mean at the top of the band: the airspeed change must go down.
+        d.airspeed_mean_mps = d.airspeed_max_mps;
+        let m = Mission::draw(&cfg, &mut rng::stream(1, "guidance"));
+        let d = &cfg.draws;
+        assert_eq!(m.tas_ini_mps, d.airspeed_max_mps);
+        let dv = m.tas_end_mps - m.tas_ini_mps;
+        // Sums and differences near 30 m/s and 2700 m round by < 1e-12.
+        assert!((dv + d.airspeed_change_min_mps).abs() < 1e-12, "{dv}");
+        let dhp = m.hp_end_m - m.hp_ini_m;
+        assert!((dhp - d.hp_change_min_m).abs() < 1e-12, "{dhp}");
+        assert_eq!(m.t_turn_s, cfg.gnss_loss_s + d.turn_delay_min_s);
+        let Trigger::Elapsed { dt_s } = m.operations[2].trigger else {
+            panic!("op 2 must end after the first phase")
+        };
+        assert_eq!(dt_s, d.phase_min_s);
+    }
+
+    #[test]
     fn alternate_mission_has_eight_turns() {
         let cfg = ScenarioConfig::builtin(2).unwrap();
         let m = Mission::draw(&cfg, &mut rng::stream(3, "guidance"));
         assert_eq!(m.chi_turns_rad.len(), 8);
         assert_eq!(m.operations.len(), 17);
         assert!(matches!(m.operations[16].trigger, Trigger::Time { t_s } if t_s == 500.0));
-    }
-
-    #[test]
-    fn wrap_deg_maps_into_half_open_interval() {
-        assert_eq!(wrap_deg(180.0), 180.0);
-        assert_eq!(wrap_deg(-180.0), 180.0);
-        assert_eq!(wrap_deg(190.0), -170.0);
-        assert_eq!(wrap_deg(-190.0), 170.0);
     }
 }

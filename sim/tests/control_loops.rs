@@ -16,14 +16,14 @@
 )]
 
 use ianav::env::atmosphere::{self, AtmosphereOffsets};
+use ianav::math::angle::wrap_pi;
 use ianav::math::wgs84::Geodetic;
 use ianav::math::{so3, wgs84};
 use ianav_sim::aircraft::{
     Actuators, AirInputs, Aircraft, AircraftParams, Controls, TruthState, air_relative,
 };
 use ianav_sim::control::guidance::air_direction_b;
-use ianav_sim::control::guidance::{air_path_angle_rad, bearing_rad, euler_zyx};
-use ianav_sim::control::pid::wrap_pi;
+use ianav_sim::control::guidance::{air_path_angle_rad, bearing_rad};
 use ianav_sim::control::{
     AileronTarget, ControlConfig, Controller, ElevatorTarget, Guidance, NavEstimate, Navigation,
     Operation, Trigger, TruthNavigation,
@@ -415,7 +415,7 @@ impl Harness {
         corrupt(t_s, &mut nav);
         self.guidance.update(t_s, &nav);
         self.command = self.controller.step(self.guidance.current(), &nav);
-        let e = euler_zyx(&nav);
+        let e = so3::euler_zyx(&nav.q_nb);
         let s = Sample {
             t_s,
             op: self.guidance.index(),

@@ -15,6 +15,7 @@ use world_magnetic_model::uom::si::f32::{Angle, Length};
 use world_magnetic_model::uom::si::length::meter;
 use world_magnetic_model::uom::si::magnetic_flux_density::nanotesla;
 
+use crate::math::angle::wrap_180_deg;
 use crate::math::wgs84::Geodetic;
 
 /// First decimal year of the WMM2025 validity span (inclusive).
@@ -73,8 +74,9 @@ impl MagneticModel {
     /// within the model's −1 km … 850 km; any longitude is wrapped.
     pub fn field_ned_nt(&self, pos: &Geodetic) -> Result<Vector3<f64>, MagneticError> {
         let lat_deg = pos.lat_rad.to_degrees();
-        // Wrap to [−180°, 180°) (the authors' scenarios use λ = 270°).
-        let lon_deg = (pos.lon_rad.to_degrees() + 180.0).rem_euclid(360.0) - 180.0;
+        // Wrap to (−180°, 180°] (the crate accepts the closed range; the authors' scenarios
+        // use λ = 270°).
+        let lon_deg = wrap_180_deg(pos.lon_rad.to_degrees());
         let f = GeomagneticField::new(
             Length::new::<meter>(pos.h_m as f32),
             Angle::new::<degree>(lat_deg as f32),
@@ -157,7 +159,10 @@ impl MagneticGrid {
     /// poles). Errors as [`MagneticModel::field_ned_nt`].
     pub fn field_ned_nt(&mut self, pos: &Geodetic) -> Result<Vector3<f64>, MagneticError> {
         let lat_deg = pos.lat_rad.to_degrees();
-        let lon_deg = (pos.lon_rad.to_degrees() + 180.0).rem_euclid(360.0) - 180.0;
+        // Any wrapping convention works here: cells are aligned to multiples of the cell size
+        // and the corners are evaluated through the (wrapping) model, so the cells on either
+        // side of ±180° meet seamlessly.
+        let lon_deg = wrap_180_deg(pos.lon_rad.to_degrees());
         let in_grid =
             lat_deg.abs() <= GRID_MAX_LAT_DEG && lon_deg.is_finite() && pos.h_m.is_finite();
         if !in_grid {
@@ -214,6 +219,7 @@ impl MagneticGrid {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use std::f64::consts::PI;
 
     fn wisconsin(h_m: f64) -> Geodetic {
         Geodetic {
@@ -391,5 +397,30 @@ mod tests {
         bad = p;
         bad.h_m = -5000.0;
         assert!(g1.field_ned_nt(&bad).is_err());
+    }
+
+    #[test]
+    fn grid_is_seamless_across_the_antimeridian() {
+        // Both ±π map to +180°, a cell corner, where the grid returns the exact model value.
+        // Just either side of the seam the cells differ (indices 719 and −720), but both end
+        // on corners evaluated at ±180°: the two sides agree within the crate's f32 rounding
+        // (~0.01 nT per value) plus the field change over 2e-9 rad (~1e-5 nT).
+        let m = MagneticModel::new(2026.0).unwrap();
+        let mut grid = MagneticGrid::new(m.clone());
+        let at = |lon_rad: f64| Geodetic {
+            lat_rad: 45.0_f64.to_radians(),
+            lon_rad,
+            h_m: 3000.0,
+        };
+        let east = grid.field_ned_nt(&at(PI)).unwrap();
+        assert_eq!(grid.field_ned_nt(&at(-PI)).unwrap(), east);
+        assert!((east - m.field_ned_nt(&at(PI)).unwrap()).amax() < 0.05);
+        let near_east = grid.field_ned_nt(&at(PI - 1e-9)).unwrap();
+        let near_west = grid.field_ned_nt(&at(-PI + 1e-9)).unwrap();
+        assert!(
+            (near_east - near_west).amax() < 0.05,
+            "{near_east} {near_west}"
+        );
+        assert!((near_east - east).amax() < 0.05);
     }
 }

@@ -66,9 +66,7 @@ fn displace(pos: &mut Geodetic, d_ned_m: &Vector3<f64>) {
 /// Small NED displacement (m) from `from` to `to` (first order; ≈ 1.6 mm error at 100 m).
 fn ned_offset_m(from: &Geodetic, to: &Geodetic) -> Vector3<f64> {
     let (m_h, n_h) = radii_h(from);
-    let dlon = (to.lon_rad - from.lon_rad + std::f64::consts::PI)
-        .rem_euclid(2.0 * std::f64::consts::PI)
-        - std::f64::consts::PI;
+    let dlon = crate::math::angle::wrap_pi(to.lon_rad - from.lon_rad);
     Vector3::new(
         (to.lat_rad - from.lat_rad) * m_h,
         dlon * n_h * from.lat_rad.cos(),

@@ -1,6 +1,7 @@
-//! Shared mathematics: WGS84 geodesy and the SO(3)/SE(3) Lie-group tools of the paper's
-//! "Mathematical Notation" (right perturbations, `X ⊕ τ = X ∘ Exp(τ)`).
+//! Shared mathematics: WGS84 geodesy, the SO(3)/SE(3) Lie-group tools of the paper's
+//! "Mathematical Notation" (right perturbations, `X ⊕ τ = X ∘ Exp(τ)`), and angle wrapping.
 
+pub mod angle;
 pub mod se3;
 pub mod so3;
 pub mod wgs84;

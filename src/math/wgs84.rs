@@ -202,7 +202,7 @@ pub fn ned_difference_m(from: &Geodetic, to: &Geodetic) -> Vector3<f64> {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::f64::consts::{FRAC_PI_2, PI};
+    use std::f64::consts::FRAC_PI_2;
 
     /// Round-trip accuracy: geodetic → ECEF rounds each coordinate to ~|p|·ε ≈ 7e6·1.1e-16
     /// ≈ 1e-9 m; the inverse adds a few more ulps. 1e-7 m (0.1 µm) leaves a 100× margin yet is
@@ -249,7 +249,7 @@ mod tests {
                     assert!((back.h_m - g.h_m).abs() < ROUND_TRIP_M, "{g:?} {back:?}");
                     // Longitude is undefined at the poles; elsewhere compare on the circle.
                     if lat.abs() < 90.0 {
-                        let dlon = (back.lon_rad - g.lon_rad + PI).rem_euclid(2.0 * PI) - PI;
+                        let dlon = crate::math::angle::wrap_pi(back.lon_rad - g.lon_rad);
                         assert!(dlon.abs() < ROUND_TRIP_RAD, "{g:?} {back:?}");
                     }
                     // The ECEF point regenerated from the result must coincide as well.

@@ -15,6 +15,7 @@
 //! which is the authors' `f − ω_eb^b × v^b + C_bn(g^n − 2ω_ie^n × v^n)` rearranged. `g^n` is
 //! normal (or "true") gravity, which already contains the centrifugal term.
 
+use ianav::math::angle::wrap_pi;
 use ianav::math::wgs84::{self, Geodetic};
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
@@ -120,17 +121,6 @@ fn rk4_combine(k1: &StateRate, k2: &StateRate, k3: &StateRate, k4: &StateRate) -
     }
 }
 
-/// Wraps a longitude into (−π, π].
-#[inline]
-fn wrap_lon(lon_rad: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    if lon_rad > PI || lon_rad <= -PI {
-        lon_rad - TAU * ((lon_rad + PI) / TAU).ceil() + TAU
-    } else {
-        lon_rad
-    }
-}
-
 /// One classical RK4 step of `dt_s` with gravity (and whatever `accelerations` captures:
 /// controls, air) held constant; the quaternion is renormalised and the longitude wrapped.
 #[inline]
@@ -149,7 +139,7 @@ where
     let k3 = state_rate(&advance(x, &k2, h), gravity_ned_mps2, &mut accelerations);
     let k4 = state_rate(&advance(x, &k3, dt_s), gravity_ned_mps2, &mut accelerations);
     let mut next = advance(x, &rk4_combine(&k1, &k2, &k3, &k4), dt_s / 6.0);
-    next.pos.lon_rad = wrap_lon(next.pos.lon_rad);
+    next.pos.lon_rad = wrap_pi(next.pos.lon_rad);
     next
 }
 
@@ -174,7 +164,7 @@ where
         mass_rate_kgps: k1.mass_rate_kgps + k2.mass_rate_kgps,
     };
     let mut next = advance(x, &sum, 0.5 * dt_s);
-    next.pos.lon_rad = wrap_lon(next.pos.lon_rad);
+    next.pos.lon_rad = wrap_pi(next.pos.lon_rad);
     next
 }
 
@@ -183,12 +173,48 @@ mod tests {
     use super::*;
 
     #[test]
-    fn longitude_wrap() {
-        use std::f64::consts::PI;
-        assert_eq!(wrap_lon(0.5), 0.5);
-        assert_eq!(wrap_lon(PI), PI);
-        assert!((wrap_lon(PI + 0.1) - (-PI + 0.1)).abs() < 1e-15);
-        assert!((wrap_lon(-PI - 0.1) - (PI - 0.1)).abs() < 1e-15);
-        assert!((wrap_lon(-PI) - PI).abs() < 1e-15);
+    fn steps_wrap_longitude_across_the_antimeridian() {
+        use crate::aircraft::TruthState;
+        use ianav::math::so3;
+        use std::f64::consts::{FRAC_PI_2, PI};
+        // Flying east at 30 m/s for 0.1 s moves λ by 3 m / ((N + h) cos φ) ≈ 6.7e-7 rad. The
+        // geodetic rates do not depend on λ, so a step started 1e-7 rad before the
+        // antimeridian must advance λ exactly as one started at λ = 0.5, only wrapped.
+        let state = |lon_rad: f64| TruthState {
+            pos: Geodetic {
+                lat_rad: 0.8,
+                lon_rad,
+                h_m: 2500.0,
+            },
+            v_b_mps: Vector3::new(30.0, 0.0, 0.0),
+            q_nb: so3::from_euler_zyx(FRAC_PI_2, 0.0, 0.0),
+            w_ib_b_rps: Vector3::zeros(),
+            mass_kg: 19.5,
+        };
+        let coast = |_: &TruthState, _: &Vector3<f64>| BodyAccelerations {
+            f_ib_b_mps2: Vector3::zeros(),
+            w_dot_ib_b_rps2: Vector3::zeros(),
+            mass_rate_kgps: 0.0,
+        };
+        let g = Vector3::new(0.0, 0.0, 9.8);
+        let start = PI - 1e-7;
+        type Coast = fn(&TruthState, &Vector3<f64>) -> BodyAccelerations;
+        type Step = fn(&TruthState, &Vector3<f64>, f64, Coast) -> TruthState;
+        let steps: [Step; 2] = [rk4_step, heun_step];
+        for step in steps {
+            let far = step(&state(0.5), &g, 0.1, coast).pos.lon_rad - 0.5;
+            let seam = step(&state(start), &g, 0.1, coast).pos.lon_rad;
+            assert!(seam > -PI && seam < 0.0, "{seam}");
+            // Rounding: λ + Δλ near π (≤ 2.2e-16), near 0.5 (≤ 5.6e-17), and `seam − start`
+            // near −2π (≤ 4.4e-16); the wrapping itself is exact. Sum < 1e-15.
+            assert!((wrap_pi(seam - start) - far).abs() < 1e-15, "{seam} {far}");
+            // Westwards from the other side.
+            let west = |lon| TruthState {
+                q_nb: so3::from_euler_zyx(-FRAC_PI_2, 0.0, 0.0),
+                ..state(lon)
+            };
+            let seam = step(&west(-start), &g, 0.1, coast).pos.lon_rad;
+            assert!(seam > 0.0 && seam <= PI, "{seam}");
+        }
     }
 }

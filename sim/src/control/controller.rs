@@ -17,9 +17,12 @@
 //! The ramp filters keep their state across switches (only their time constant changes), so
 //! no primary target jumps. The primary loops are never reset.
 
+use ianav::math::angle::wrap_pi;
+use ianav::math::so3;
+
 use super::config::ControlConfig;
-use super::guidance::{air_path_angle_rad, bearing_rad, euler_rates, euler_zyx};
-use super::pid::{Differentiator, LowPass, Pid, wrap_pi};
+use super::guidance::{air_path_angle_rad, bearing_rad, euler_rates};
+use super::pid::{Differentiator, LowPass, Pid};
 use super::{AileronTarget, ElevatorTarget, NavEstimate, Operation};
 use crate::aircraft::Controls;
 
@@ -72,7 +75,9 @@ struct Measured {
 
 impl Measured {
     fn from_nav(nav: &NavEstimate) -> Option<Self> {
-        let e = euler_zyx(nav);
+        // [ψ, θ, ξ], never NaN for a finite quaternion; at gimbal lock (θ = ±90°, where only
+        // ψ ∓ ξ is observable) ξ is set to 0, and the Euler rates are singular there.
+        let e = so3::euler_zyx(&nav.q_nb);
         let (theta_rad, xi_rad) = (e.y, e.z);
         let rates = euler_rates(theta_rad, xi_rad, &nav.w_nb_b_rps);
         let m = Self {

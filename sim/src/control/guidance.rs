@@ -1,6 +1,7 @@
 //! Guidance (author_impl §5.1): a mission is a list of [`Operation`]s, each ended by its
 //! [`Trigger`]; plus the flight-path quantities guidance and control read off the navigation
-//! estimate (Euler angles and rates, ground-track bearing χ, air path angle γ_TAS).
+//! estimate (Euler rates, ground-track bearing χ, air path angle γ_TAS; the Euler angles
+//! themselves come from [`ianav::math::so3::euler_zyx`]).
 //!
 //! Triggers on a continuous value fire when `sign(value − threshold)` differs from its sign
 //! when the operation started (so the threshold may be approached from either side). Bearing
@@ -10,17 +11,11 @@
 
 use std::f64::consts::FRAC_PI_2;
 
+use ianav::math::angle::wrap_pi;
 use nalgebra::Vector3;
 use thiserror::Error;
 
-use super::pid::wrap_pi;
 use super::{AileronTarget, ElevatorTarget, NavEstimate, Operation, Trigger};
-
-/// Euler angles `(ψ, θ, ξ)` of `q_nb` (ZYX: yaw, pitch, bank), rad.
-pub fn euler_zyx(nav: &NavEstimate) -> Vector3<f64> {
-    let (xi, theta, psi) = nav.q_nb.euler_angles();
-    Vector3::new(psi, theta, xi)
-}
 
 /// Euler angle rates `(ψ̇, θ̇, ξ̇)` from the body rates relative to NED `ω_nb^b = (p, q, r)`
 /// (standard ZYX kinematics; singular only at θ = ±90°, where the result is non-finite and
@@ -303,6 +298,7 @@ impl Guidance {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use ianav::math::so3;
     use ianav::math::wgs84::Geodetic;
     use nalgebra::UnitQuaternion;
 
@@ -357,10 +353,9 @@ mod tests {
         let w = Vector3::new(0.3, -0.2, 0.5);
         let h = 1e-6;
         let q1 = q0 * UnitQuaternion::from_scaled_axis(w * h);
-        let (x0, t0, p0) = q0.euler_angles();
-        let (x1, t1, p1) = q1.euler_angles();
-        let fd = Vector3::new(p1 - p0, t1 - t0, x1 - x0) / h;
-        let an = euler_rates(t0, x0, &w);
+        let (e0, e1) = (so3::euler_zyx(&q0), so3::euler_zyx(&q1));
+        let fd = (e1 - e0) / h;
+        let an = euler_rates(e0.y, e0.z, &w);
         assert!((fd - an).norm() < 1e-5, "{fd:?} vs {an:?}");
     }
 

@@ -14,6 +14,8 @@
 //! The integral is stored as its contribution to the output (output units), so a change of
 //! gains or a bumpless transfer only needs the integral term to be set, never rescaled.
 
+use ianav::math::angle::wrap_pi;
+
 /// Gains and limits of one PID loop, in SI units (rad, m, m/s, s) of its input and output.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct PidGains {
@@ -72,17 +74,6 @@ impl LowPass {
         self.y = wrap_pi(self.y + self.gain(dt_s) * wrap_pi(u_rad - self.y));
         self.y
     }
-}
-
-/// Wrap an angle to (−π, π].
-pub fn wrap_pi(a_rad: f64) -> f64 {
-    use std::f64::consts::{PI, TAU};
-    if (-PI..=PI).contains(&a_rad) && a_rad != -PI {
-        return a_rad;
-    }
-    let w = a_rad - TAU * (a_rad / TAU).round();
-    // `round` can leave exactly −π (or π + rounding); map the closed end consistently.
-    if w <= -PI { w + TAU } else { w }
 }
 
 /// Rate of a sampled signal by backward difference (`0` on the first sample), optionally
@@ -222,7 +213,6 @@ fn clamp_nan_safe(x: f64, lo: f64, hi: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use std::f64::consts::PI;
 
     fn gains() -> PidGains {
         PidGains {
@@ -235,21 +225,6 @@ mod tests {
             out_min: -1.0,
             out_max: 1.0,
         }
-    }
-
-    #[test]
-    fn wrap_pi_maps_into_half_open_interval() {
-        for k in -5..=5 {
-            let base = 0.3 + 2.0 * PI * f64::from(k);
-            assert!((wrap_pi(base) - 0.3).abs() < 1e-12);
-        }
-        assert_eq!(wrap_pi(PI), PI);
-        assert!((wrap_pi(-PI) - PI).abs() < 1e-15);
-        assert!((wrap_pi(3.0 * PI) - PI).abs() < 1e-12);
-        assert!(wrap_pi(f64::NAN).is_nan());
-        // Difference across ±180°: 179° − (−179°) is −2°, not 358°.
-        let d = wrap_pi(179_f64.to_radians() - (-179_f64).to_radians());
-        assert!((d.to_degrees() + 2.0).abs() < 1e-9);
     }
 
     #[test]

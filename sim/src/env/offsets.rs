@@ -6,12 +6,6 @@ use serde::{Deserialize, Serialize};
 
 use crate::rng::{self, Stream};
 
-/// Cap on the rejection loops of the ramp-time draws. The rejection probabilities of the
-/// scenario configurations are ≤ 0.28 per draw, so the cap (probability ≤ 0.28¹⁰⁰⁰) is never
-/// reached in practice; it only guards degenerate configurations (e.g. σ_t = 0 with μ_t <
-/// t_min). When reached, the value is set to the bound it failed (documented fallback).
-pub const MAX_REDRAWS: usize = 1000;
-
 /// Parameters of the offsets draw (one row of the author_impl §3.3 table).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -67,16 +61,12 @@ pub struct WeatherOffsets {
     pub delta_p_pa: [f64; 2],
 }
 
-/// `mean + sigma·N(0,1)`, redrawn while below `min` (at most [`MAX_REDRAWS`] times; then
-/// `min`).
+/// `mean + sigma·N(0,1)`, redrawn while below `min` ([`rng::normal_until`]). The rejection
+/// probabilities of the scenario configurations are ≤ 0.28 per draw, so the cap
+/// [`rng::MAX_REDRAWS`] only guards degenerate configurations (e.g. σ_t = 0 with μ_t < t_min);
+/// there the value falls back to the bound it failed, `min`.
 pub(crate) fn draw_at_least(rng: &mut Stream, mean: f64, sigma: f64, min: f64) -> f64 {
-    for _ in 0..MAX_REDRAWS {
-        let x = mean + sigma * rng::normal(rng);
-        if x >= min {
-            return x;
-        }
-    }
-    min
+    rng::normal_until(rng, mean, sigma, |x| x >= min, min)
 }
 
 /// Piecewise constant–linear–constant ramp from `v[0]` (until `t[0]`) to `v[1]` (from `t[1]`).

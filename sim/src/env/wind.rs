@@ -1,6 +1,7 @@
 //! Low-frequency wind ramps (author_impl §3.4): horizontal, function of time only; the North
 //! and East components go linearly from the initial to the final wind over the ramp.
 
+use ianav::math::angle::wrap_180_deg;
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
@@ -55,12 +56,6 @@ pub struct WindField {
     pub wind_ned_mps: [Vector3<f64>; 2],
 }
 
-/// Wrap an angle in degrees to (−180, 180].
-fn wrap_deg(a: f64) -> f64 {
-    let w = a.rem_euclid(360.0);
-    if w > 180.0 { w - 360.0 } else { w }
-}
-
 /// Horizontal NED wind blowing *towards* bearing `chi_deg` at `speed_mps`.
 fn wind_towards(speed_mps: f64, chi_deg: f64) -> Vector3<f64> {
     let chi = chi_deg.to_radians();
@@ -70,7 +65,7 @@ fn wind_towards(speed_mps: f64, chi_deg: f64) -> Vector3<f64> {
 impl WindField {
     /// Draw the wind of one run in the order of author_impl §3.4: ramp start (redrawn while
     /// below the earliest start), ramp end (redrawn while shorter than σ_t/2; both loops
-    /// capped by [`super::offsets::MAX_REDRAWS`], falling back to the bound), initial speed
+    /// capped by [`crate::rng::MAX_REDRAWS`], falling back to the bound), initial speed
     /// `|σ_V N|`, initial direction `U_int{−179..180}°`, speed change, direction change. A
     /// negative final speed flips the direction by 180°. Directions are where the wind blows
     /// towards.
@@ -91,7 +86,7 @@ impl WindField {
             t_ramp_s: [t_ini, t_end],
             wind_ned_mps: [
                 wind_towards(v_ini, chi_ini),
-                wind_towards(v_end, wrap_deg(chi_end)),
+                wind_towards(v_end, wrap_180_deg(chi_end)),
             ],
         }
     }
@@ -117,15 +112,6 @@ mod tests {
     const RUNS: u64 = 20_000;
     /// Bounds in standard errors (see offsets tests).
     const K: f64 = 4.5;
-
-    #[test]
-    fn wrap() {
-        assert_eq!(wrap_deg(180.0), 180.0);
-        assert_eq!(wrap_deg(-180.0), 180.0);
-        assert_eq!(wrap_deg(190.0), -170.0);
-        assert_eq!(wrap_deg(-190.0), 170.0);
-        assert_eq!(wrap_deg(540.0), 180.0);
-    }
 
     #[test]
     fn blows_towards_bearing() {
@@ -206,7 +192,7 @@ mod tests {
             .filter(|f| f.wind_ned_mps[0].norm() > 15.0)
             .map(|f| {
                 let [a, b] = f.wind_ned_mps;
-                wrap_deg(b.y.atan2(b.x).to_degrees() - a.y.atan2(a.x).to_degrees())
+                wrap_180_deg(b.y.atan2(b.x).to_degrees() - a.y.atan2(a.x).to_degrees())
             })
             .collect();
         let (m, s) = mean_std(&dchi);
