@@ -5,9 +5,10 @@
 
 use ianav::env::atmosphere::{self, AtmosphereOffsets};
 use ianav::env::magnetic::{MagneticGrid, MagneticModel};
+use ianav::ins::{Ins, InsConfig, InsInit, InsSolution};
 use ianav::math::wgs84::Geodetic;
 use ianav::math::{so3, wgs84};
-use ianav::sensors::SensorEvent;
+use ianav::sensors::{GnssFix, SensorEvent};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -15,7 +16,9 @@ use crate::aircraft::{
     Actuators, AirInputs, AirRelative, Aircraft, AircraftParams, Controls, Loads, TruthState,
     air_relative,
 };
-use crate::control::{ControlConfig, Controller, Guidance, Navigation, Operation, TruthNavigation};
+use crate::control::{
+    ControlConfig, Controller, Guidance, NavEstimate, Navigation, Operation, TruthNavigation,
+};
 use crate::env::{
     DrydenParams, TrueGravity, TrueMagneticField, Turbulence, TurbulenceConfig, WeatherOffsets,
     WindField,
@@ -54,6 +57,9 @@ pub enum FlightError {
     /// The sensor configuration is invalid.
     #[error("sensors: {0}")]
     Sensors(#[from] crate::sensors::SensorConfigError),
+    /// The INS configuration or initialisation is invalid.
+    #[error("ins: {0}")]
+    Ins(#[from] ianav::ins::InsError),
     /// The control configuration is invalid.
     #[error("control: {0}")]
     Control(#[from] crate::control::ControlConfigError),
@@ -95,6 +101,18 @@ impl Default for RatesConfig {
     }
 }
 
+/// What guidance and control fly on.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum NavigationMode {
+    /// The simulator's truth (tests of the aircraft and control that must not depend on
+    /// the navigation).
+    #[default]
+    Truth,
+    /// The GNSS-denied INS fed with the simulated sensors (the paper's set-up).
+    Ins,
+}
+
 /// Everything that defines a flight but the seed.
 #[derive(Debug, Clone)]
 pub struct FlightSetup {
@@ -110,6 +128,10 @@ pub struct FlightSetup {
     pub rates: RatesConfig,
     /// Fly this mission instead of drawing one (tests and custom missions).
     pub mission_override: Option<Mission>,
+    /// Navigation source of guidance and control.
+    pub navigation: NavigationMode,
+    /// INS configuration (used when `navigation` is `Ins`).
+    pub ins: InsConfig,
 }
 
 impl FlightSetup {
@@ -119,6 +141,9 @@ impl FlightSetup {
         self.aircraft.validate()?;
         self.sensors.validate()?;
         self.control.validate()?;
+        self.ins
+            .validate()
+            .map_err(|e| FlightError::Ins(ianav::ins::InsError::Config(e)))?;
         Ok(())
     }
 
@@ -131,6 +156,8 @@ impl FlightSetup {
             control: ControlConfig::default(),
             rates: RatesConfig::default(),
             mission_override: None,
+            navigation: NavigationMode::default(),
+            ins: InsConfig::default(),
         })
     }
 }
@@ -178,6 +205,9 @@ pub trait FlightObserver {
     fn sensor_event(&mut self, _event: &SensorEvent) {}
     /// Truth at the output rate.
     fn truth_sample(&mut self, _sample: &TruthSample) {}
+    /// Truth and the navigation estimate guidance and control are flying on, at the output
+    /// rate (right after `truth_sample`): what navigation-error metrics are computed from.
+    fn estimate_sample(&mut self, _truth: &TruthSample, _estimate: &NavEstimate) {}
     /// A guidance operation started at mission time `t_s`.
     fn operation_started(&mut self, _t_s: f64, _index: usize, _operation: &Operation) {}
 }
@@ -268,7 +298,18 @@ pub struct Flight {
     sensors: SensorSuite,
     guidance: Guidance,
     controller: Controller,
-    navigation: TruthNavigation,
+    /// The estimate guidance and control fly on (truth until the INS has a solution).
+    estimate: NavEstimate,
+    navigation_mode: NavigationMode,
+    ins_config: InsConfig,
+    /// Initial-error draws of the INS (author_impl §1.9).
+    ins_init_rng: rng::Stream,
+    magnetic_decimal_year: f64,
+    ins: Option<Ins>,
+    /// Latest INS solution.
+    ins_solution: Option<InsSolution>,
+    /// Sensor events of the current sample instant, in the order the INS consumes them.
+    pending_events: Vec<SensorEvent>,
 
     mission: Mission,
     distance_m: f64,
@@ -288,6 +329,21 @@ fn steps_per(field: &'static str, period_s: f64, step_s: f64) -> Result<u64, Fli
         });
     }
     Ok(n as u64)
+}
+
+/// The estimate guidance and control need, from an INS solution.
+fn estimate_from_ins(sol: &InsSolution) -> NavEstimate {
+    NavEstimate {
+        t_us: sol.t_us,
+        pos: sol.pos,
+        v_ned_mps: sol.v_ned_mps,
+        q_nb: sol.q_nb,
+        w_nb_b_rps: sol.w_nb_b_rps,
+        tas_mps: sol.tas_mps,
+        aoa_rad: sol.aoa_rad,
+        aos_rad: sol.aos_rad,
+        hp_m: sol.hp_m,
+    }
 }
 
 /// Seconds → microseconds, rounded (times are validated finite and non-negative).
@@ -430,7 +486,14 @@ impl Flight {
             sensors,
             guidance,
             controller,
-            navigation,
+            estimate: navigation.estimate(),
+            navigation_mode: setup.navigation,
+            ins_config: setup.ins.clone(),
+            ins_init_rng: rng::stream(seed, "ins.init"),
+            magnetic_decimal_year: scn.magnetic_decimal_year,
+            ins: None,
+            ins_solution: None,
+            pending_events: Vec::with_capacity(8),
             mission,
             distance_m: 0.0,
             h_range_m: [f64::INFINITY, f64::NEG_INFINITY],
@@ -540,7 +603,7 @@ impl Flight {
         let k = self.step_index;
         let t_mission_s = self.mission_time_s();
         if k.is_multiple_of(self.steps_per_control) {
-            let nav = self.navigation.estimate();
+            let nav = self.estimate;
             if let Some(index) = self.guidance.update(t_mission_s, &nav) {
                 self.record_operation(t_mission_s, index, observer);
             } else if k == 0 {
@@ -590,10 +653,12 @@ impl Flight {
             || due(self.steps_per_mag)
             || due(self.steps_per_gnss)
         {
-            self.sample_sensors(&position, observer);
+            self.sample_sensors(&position, observer)?;
         }
         if k.is_multiple_of(self.steps_per_output) {
-            observer.truth_sample(&self.truth_sample());
+            let truth = self.truth_sample();
+            observer.truth_sample(&truth);
+            observer.estimate_sample(&truth, &self.estimate);
         }
         Ok(())
     }
@@ -608,7 +673,11 @@ impl Flight {
         });
     }
 
-    fn sample_sensors(&mut self, controls: &Controls, observer: &mut impl FlightObserver) {
+    fn sample_sensors(
+        &mut self,
+        controls: &Controls,
+        observer: &mut impl FlightObserver,
+    ) -> Result<(), FlightError> {
         let t_us = self.t_us();
         let loads: Loads = self.aircraft.loads(&self.x, controls, &self.air);
         let v_ned_mps = self.x.q_nb * self.x.v_b_mps;
@@ -633,27 +702,88 @@ impl Flight {
             temp_k: self.air.temp_k,
         };
         let k = self.step_index;
-        if k.is_multiple_of(self.steps_per_sensor) {
-            observer.sensor_event(&SensorEvent::Imu(self.sensors.sample_imu(&truth)));
-            self.sensor_events += 1;
-        }
+        // Aiding samples first, then the IMU sample on which the INS steps, so that samples
+        // taken at the same instant are fused in the same INS step.
+        let mut events = std::mem::take(&mut self.pending_events);
+        events.clear();
         if k.is_multiple_of(self.steps_per_air) {
-            observer.sensor_event(&SensorEvent::Air(self.sensors.sample_air(&truth)));
-            self.sensor_events += 1;
+            events.push(SensorEvent::Air(self.sensors.sample_air(&truth)));
         }
         if k.is_multiple_of(self.steps_per_mag) {
-            observer.sensor_event(&SensorEvent::Mag(self.sensors.sample_mag(&truth)));
-            self.sensor_events += 1;
+            events.push(SensorEvent::Mag(self.sensors.sample_mag(&truth)));
         }
         if k.is_multiple_of(self.steps_per_gnss) && t_us <= self.gnss_loss_us {
-            observer.sensor_event(&SensorEvent::Gnss(self.sensors.sample_gnss(&truth)));
-            self.sensor_events += 1;
+            events.push(SensorEvent::Gnss(self.sensors.sample_gnss(&truth)));
         }
-        // Until the INS flies in the loop, guidance and control see the truth.
+        if k.is_multiple_of(self.steps_per_sensor) {
+            events.push(SensorEvent::Imu(self.sensors.sample_imu(&truth)));
+        }
+        self.sensor_events += events.len() as u64;
         let w_in_n =
             wgs84::omega_ie_n(self.x.pos.lat_rad) + wgs84::omega_en_n(&self.x.pos, &v_ned_mps);
-        self.navigation =
-            TruthNavigation::from_truth(t_us, &self.x, &loads.air, &w_in_n, self.hp_m);
+        let truth_estimate =
+            TruthNavigation::from_truth(t_us, &self.x, &loads.air, &w_in_n, self.hp_m).estimate();
+        // The INS starts at the first GNSS fix, from its position and velocity (as the
+        // authors' filters do); guidance flies on the truth until then (the first second).
+        if self.navigation_mode == NavigationMode::Ins && self.ins.is_none() {
+            let first_fix = events.iter().find_map(|e| match e {
+                SensorEvent::Gnss(fix) => Some(*fix),
+                _ => None,
+            });
+            if let Some(fix) = first_fix {
+                self.ins = Some(self.initial_ins(&truth_estimate, &fix)?);
+            }
+        }
+        for event in &events {
+            observer.sensor_event(event);
+            if let Some(solution) = self.ins.as_mut().and_then(|ins| ins.push(event)) {
+                self.ins_solution = Some(solution);
+            }
+        }
+        self.pending_events = events;
+        self.estimate = match (&self.ins_solution, self.navigation_mode) {
+            (Some(sol), NavigationMode::Ins) => estimate_from_ins(sol),
+            _ => truth_estimate,
+        };
+        Ok(())
+    }
+
+    /// The INS started at the current instant with the initial errors of author_impl §1.9:
+    /// attitude off by 0.1°·N about a random axis, sensor-error estimates within 1 % (10 % for
+    /// the magnetic-model error) of the truth; position and velocity from the GNSS fix.
+    fn initial_ins(&mut self, truth: &NavEstimate, fix: &GnssFix) -> Result<Ins, FlightError> {
+        let r = &mut self.ins_init_rng;
+        let axis = Vector3::new(rng::normal(r), rng::normal(r), rng::normal(r));
+        let angle_rad = (0.1_f64).to_radians() * rng::normal(r);
+        let q_err = so3::exp(&(axis.try_normalize(1e-12).unwrap_or(Vector3::x()) * angle_rad));
+        let (pos, v_ned_mps) = (fix.pos, fix.v_ned_mps);
+        let errors = self.sensors.true_errors();
+        let mut scaled = |v: Vector3<f64>, rel: f64| -> (Vector3<f64>, Vector3<f64>) {
+            (
+                v.map(|x| x * (1.0 + rel * rng::normal(r))),
+                v.map(|x| (rel * x).abs()),
+            )
+        };
+        let (e_gyr_rps, e_gyr_sigma_rps) = scaled(errors.e_gyr_rps, 0.01);
+        let (e_acc_mps2, e_acc_sigma_mps2) = scaled(errors.e_acc_mps2, 0.01);
+        let (e_mag_nt, e_mag_sigma_nt) = scaled(errors.e_mag_nt, 0.01);
+        let (delta_b_n_nt, delta_b_n_sigma_nt) = scaled(-self.magnetic.error_ned_nt, 0.1);
+        let init = InsInit {
+            q_nb: q_err * truth.q_nb,
+            pos,
+            v_ned_mps,
+            e_gyr_rps,
+            e_gyr_sigma_rps,
+            e_acc_mps2,
+            e_acc_sigma_mps2,
+            e_mag_nt,
+            e_mag_sigma_nt,
+            delta_b_n_nt,
+            delta_b_n_sigma_nt,
+            aoa_rad: truth.aoa_rad,
+            mag_decimal_year: self.magnetic_decimal_year,
+        };
+        Ok(Ins::new(&self.ins_config, &init)?)
     }
 
     /// Fly to the end of the mission, reporting progress (mission seconds) to `progress`.

@@ -291,7 +291,7 @@ impl RunWriter {
 /// `45.06352° N, 89.95502° W, 2794 m`.
 fn format_position(pos: &Geodetic) -> String {
     let (lat, lon) = (pos.lat_rad.to_degrees(), pos.lon_rad.to_degrees());
-    let lon = (lon + 180.0).rem_euclid(360.0) - 180.0;
+    let lon = ianav::math::angle::wrap_180_deg(lon);
     let ns = if lat >= 0.0 { 'N' } else { 'S' };
     let ew = if lon >= 0.0 { 'E' } else { 'W' };
     format!(
