@@ -3,13 +3,17 @@
 //! - `run`: one flight, with a progress bar, writing trajectory, sensor samples, summary,
 //!   plots and a report.
 //! - `bench`: one flight without output, timing the simulator (real-time factor, memory).
+//! - `mc`: a Monte Carlo batch (or one shard of it) in parallel, one metrics file per run.
+//! - `report`: the navigation-error tables and plots of one or several `mc` directories.
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicUsize, Ordering};
 use std::time::Instant;
 
 use anyhow::{Context, Result, bail};
 use clap::{Parser, Subcommand};
-use ianav_sim::flight::{Flight, FlightSetup, NoObserver};
+use ianav_sim::flight::{Flight, FlightSetup, NavigationMode, NoObserver};
+use ianav_sim::montecarlo::{self, Batch, RunOutcome, SeedRange, Shard};
 use ianav_sim::output::RunWriter;
 use indicatif::{ProgressBar, ProgressStyle};
 
@@ -21,25 +25,45 @@ struct Cli {
     command: Command,
 }
 
-/// Options shared by the commands that fly.
+/// Options of the commands that fly one seed.
 #[derive(Debug, clap::Args)]
 struct FlyArgs {
-    /// Scenario: 1 (3,800 s benchmark) or 2 (500 s, eight turns).
-    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
-    scenario: u8,
+    #[command(flatten)]
+    setup: SetupArgs,
     /// Run seed (every random draw of the flight derives from it).
     #[arg(long, default_value_t = 1)]
     seed: u64,
+}
+
+/// What every flight of a command flies (shared by `run`, `bench` and `mc`).
+#[derive(Debug, clap::Args)]
+struct SetupArgs {
+    /// Scenario: 1 (3,800 s benchmark) or 2 (500 s, eight turns).
+    #[arg(long, value_parser = clap::value_parser!(u8).range(1..=2))]
+    scenario: u8,
     /// Mission duration override, s (shorter flights for quick looks).
     #[arg(long)]
     duration: Option<f64>,
     /// Turbulence factor override (0 = calm; the scenarios use 0.5).
     #[arg(long)]
     turbulence: Option<f64>,
-    /// Directory with `aircraft.toml`, `sensors.toml`, `control.toml` and
+    /// Directory with `aircraft.toml`, `sensors.toml`, `control.toml`, `ins.toml` and
     /// `scenarios/scenario{1,2}.toml` replacing the built-in defaults (each file optional).
     #[arg(long)]
     config_dir: Option<PathBuf>,
+    /// What guidance and control fly on: the simulator's truth, or the INS fed with the
+    /// simulated sensors.
+    #[arg(long, value_enum, default_value_t = Navigation::Truth)]
+    navigation: Navigation,
+}
+
+/// Navigation source of guidance and control (`--navigation`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum Navigation {
+    /// The simulator's truth.
+    Truth,
+    /// The GNSS-denied INS.
+    Ins,
 }
 
 #[derive(Debug, Subcommand)]
@@ -60,6 +84,41 @@ enum Command {
         #[command(flatten)]
         fly: FlyArgs,
     },
+    /// Fly a Monte Carlo batch (or one shard of it) and write one metrics file per run.
+    Mc(McArgs),
+    /// Build the Monte Carlo report (`report.md`, plots) from `mc` directories.
+    Report {
+        /// Batch directories (holding `runs/`), or parents whose subdirectories are batch
+        /// directories (shards copied side by side); runs are merged by seed.
+        #[arg(required = true)]
+        dirs: Vec<PathBuf>,
+        /// Where to write the report (default: the first directory).
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
+}
+
+/// Options of `mc`.
+#[derive(Debug, clap::Args)]
+struct McArgs {
+    #[command(flatten)]
+    setup: SetupArgs,
+    /// Number of runs: seeds 1..=N (unless --seeds is given).
+    #[arg(long, required_unless_present = "seeds")]
+    runs: Option<u64>,
+    /// Inclusive seed range A..B (also written A..=B).
+    #[arg(long)]
+    seeds: Option<SeedRange>,
+    /// Worker threads (default: all cores).
+    #[arg(long, value_parser = clap::value_parser!(u64).range(1..=4096))]
+    jobs: Option<u64>,
+    /// Fly only shard i of n (1-based): the k-th seed of the list (from 0) goes to shard
+    /// k mod n + 1.
+    #[arg(long)]
+    shard: Option<Shard>,
+    /// Output directory (created if missing): `runs/run_NNNN.csv` and the manifest.
+    #[arg(long)]
+    out: PathBuf,
 }
 
 fn read_optional(dir: Option<&PathBuf>, name: &str) -> Result<Option<(PathBuf, String)>> {
@@ -73,7 +132,7 @@ fn read_optional(dir: Option<&PathBuf>, name: &str) -> Result<Option<(PathBuf, S
     Ok(Some((path, text)))
 }
 
-fn setup(args: &FlyArgs) -> Result<FlightSetup> {
+fn setup(args: &SetupArgs) -> Result<FlightSetup> {
     let mut setup = FlightSetup::builtin(args.scenario)?;
     let dir = args.config_dir.as_ref();
     if let Some((path, text)) =
@@ -82,6 +141,14 @@ fn setup(args: &FlyArgs) -> Result<FlightSetup> {
         setup.scenario = ianav_sim::scenario::ScenarioConfig::from_toml_str(&text)
             .with_context(|| path.display().to_string())?;
     }
+    if let Some((path, text)) = read_optional(dir, "ins.toml")? {
+        setup.ins = ianav::ins::InsConfig::from_toml_str(&text)
+            .with_context(|| path.display().to_string())?;
+    }
+    setup.navigation = match args.navigation {
+        Navigation::Truth => NavigationMode::Truth,
+        Navigation::Ins => NavigationMode::Ins,
+    };
     if let Some((path, text)) = read_optional(dir, "aircraft.toml")? {
         setup.aircraft = ianav_sim::aircraft::AircraftParams::from_toml_str(&text)
             .with_context(|| path.display().to_string())?;
@@ -111,7 +178,7 @@ fn setup(args: &FlyArgs) -> Result<FlightSetup> {
 }
 
 fn run(fly: &FlyArgs, out: &std::path::Path, no_sensor_log: bool) -> Result<()> {
-    let setup = setup(fly)?;
+    let setup = setup(&fly.setup)?;
     let mut flight = Flight::new(&setup, fly.seed)?;
     let mut writer = RunWriter::new(out, !no_sensor_log)?;
     let end_s = flight.end_time_s();
@@ -122,7 +189,7 @@ fn run(fly: &FlyArgs, out: &std::path::Path, no_sensor_log: bool) -> Result<()> 
         )
         .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
-    bar.set_message(format!("scenario {} seed {}", fly.scenario, fly.seed));
+    bar.set_message(format!("scenario {} seed {}", fly.setup.scenario, fly.seed));
     let started = Instant::now();
     let summary = flight.run(&mut writer, |t_s| bar.set_position(t_s.max(0.0) as u64))?;
     bar.finish();
@@ -152,7 +219,7 @@ fn memory_kb() -> Option<(u64, u64)> {
 }
 
 fn bench(fly: &FlyArgs) -> Result<()> {
-    let setup = setup(fly)?;
+    let setup = setup(&fly.setup)?;
     let mut flight = Flight::new(&setup, fly.seed)?;
     let simulated_s = setup.scenario.warmup_s + flight.end_time_s();
     let end_s = flight.end_time_s();
@@ -168,7 +235,7 @@ fn bench(fly: &FlyArgs) -> Result<()> {
     let wall_s = started.elapsed().as_secs_f64();
     println!(
         "scenario {} seed {}: {:.0} s simulated ({} steps at 500 Hz, physics + environment + sensors + control)",
-        fly.scenario, fly.seed, simulated_s, summary.truth_steps
+        fly.setup.scenario, fly.seed, simulated_s, summary.truth_steps
     );
     println!(
         "wall time {wall_s:.3} s, real-time factor {:.0}x, {:.0} ns per integration step",
@@ -186,6 +253,72 @@ fn bench(fly: &FlyArgs) -> Result<()> {
     Ok(())
 }
 
+fn mc(args: &McArgs) -> Result<()> {
+    let setup = setup(&args.setup)?;
+    let seeds = montecarlo::seed_list(args.runs, args.seeds)?;
+    let batch = Batch {
+        scenario: args.setup.scenario,
+        setup,
+        seeds,
+        shard: args.shard,
+        jobs: args.jobs.map(|j| j as usize),
+    };
+    let to_fly = batch.seeds_to_fly();
+    let bar = ProgressBar::new(to_fly.len() as u64);
+    bar.set_style(
+        ProgressStyle::with_template(
+            "{msg} [{elapsed_precise}] {wide_bar} {pos}/{len} runs (eta {eta})",
+        )
+        .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let shard = args
+        .shard
+        .map(|s| format!(" shard {s}"))
+        .unwrap_or_default();
+    bar.set_message(format!("scenario {}{shard}", args.setup.scenario));
+    let failed = AtomicUsize::new(0);
+    let started = Instant::now();
+    let summary = montecarlo::run_batch(&batch, &args.out, |record| {
+        if let RunOutcome::Failed { reason } = &record.outcome {
+            let n = failed.fetch_add(1, Ordering::Relaxed) + 1;
+            bar.println(format!("seed {} failed: {reason}", record.seed));
+            bar.set_message(format!(
+                "scenario {}{shard} ({n} failed)",
+                args.setup.scenario
+            ));
+        }
+        bar.inc(1);
+    })?;
+    bar.finish();
+    let m = &summary.manifest;
+    println!(
+        "scenario {}{shard}: {} runs, {} completed, {} failed, in {:.1} s wall; manifest {}",
+        m.scenario,
+        m.seeds.len(),
+        m.completed,
+        m.failed.len(),
+        started.elapsed().as_secs_f64(),
+        summary.manifest_path.display()
+    );
+    Ok(())
+}
+
+fn report(dirs: &[PathBuf], out: Option<&PathBuf>) -> Result<()> {
+    let Some(out) = out.or(dirs.first()) else {
+        bail!("give at least one directory");
+    };
+    let started = Instant::now();
+    let summary = ianav_sim::report::report(dirs, out)?;
+    println!(
+        "{} runs ({} completed) in {:.2} s; report: {}",
+        summary.runs,
+        summary.completed,
+        started.elapsed().as_secs_f64(),
+        summary.report_path.display()
+    );
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match &cli.command {
@@ -195,5 +328,7 @@ fn main() -> Result<()> {
             no_sensor_log,
         } => run(fly, out, *no_sensor_log),
         Command::Bench { fly } => bench(fly),
+        Command::Mc(args) => mc(args),
+        Command::Report { dirs, out } => report(dirs, out.as_ref()),
     }
 }

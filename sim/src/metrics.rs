@@ -1,0 +1,146 @@
+//! Navigation system error (NSE) of one flight, as the paper's INSE/VNSE tables and figures
+//! define it (CONVENTIONS "Errors (navigation system error, NSE)"; author_impl §6.6: per-run
+//! time histories sampled every 10 s of mission time): Euler-angle and attitude-norm errors,
+//! vertical error, horizontal error in metres and as a percentage of the distance flown.
+//! Errors are `estimate − truth`.
+
+use ianav::math::{angle, so3, wgs84};
+
+use crate::control::NavEstimate;
+use crate::flight::{FlightObserver, TruthSample};
+
+/// Mission-time spacing of the metrics samples, s (the paper's post-processing samples the
+/// error histories every 10 s: 381 samples over 3,800 s).
+pub const SAMPLE_PERIOD_S: f64 = 10.0;
+
+/// Below this ground distance flown, the horizontal error as a percentage of the distance is
+/// undefined (reported as NaN): at mission time 0 the distance is exactly 0, and over the
+/// first metre the ratio would only amplify the initial error.
+pub const MIN_DISTANCE_FOR_PERCENT_M: f64 = 1.0;
+
+/// Tolerance on the mission time when matching output samples to the 10-s grid, s. Output
+/// samples come every 0.1 s and mission times are exact to ~1e-9 s, so any value between
+/// those two scales selects the same samples.
+const GRID_TOLERANCE_S: f64 = 1e-6;
+
+/// The navigation errors at one instant.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NseSample {
+    /// Mission time, s.
+    pub t_s: f64,
+    /// Yaw error ψ_est − ψ_truth wrapped onto (−180°, 180°], deg.
+    pub yaw_deg: f64,
+    /// Pitch error, deg.
+    pub pitch_deg: f64,
+    /// Bank error, wrapped onto (−180°, 180°], deg.
+    pub bank_deg: f64,
+    /// Attitude error `‖Log(q_nb_truth⁻¹ ∘ q_nb_est)‖`, deg (in [0°, 180°]).
+    pub att_norm_deg: f64,
+    /// Vertical error `h_est − h_truth`, m.
+    pub alt_m: f64,
+    /// Horizontal error: norm of the north and east components of the vector from the true
+    /// to the estimated position, in the local level frame at the truth, m.
+    pub hor_m: f64,
+    /// Horizontal error as a percentage of the ground distance flown since mission time 0
+    /// (NaN while that distance is below [`MIN_DISTANCE_FOR_PERCENT_M`]), %.
+    pub hor_pct: f64,
+    /// Ground distance flown since mission time 0 (truth), m.
+    pub distance_m: f64,
+}
+
+/// Navigation errors of `estimate` against `truth`.
+pub fn nse(truth: &TruthSample, estimate: &NavEstimate) -> NseSample {
+    let euler_est = so3::euler_zyx(&estimate.q_nb);
+    let euler_truth = so3::euler_zyx(&truth.q_nb);
+    let d_euler_deg = (euler_est - euler_truth).map(|d| angle::wrap_pi(d).to_degrees());
+    let att_norm_deg = so3::log(&(truth.q_nb.inverse() * estimate.q_nb))
+        .norm()
+        .to_degrees();
+    let d_ned_m = wgs84::ned_difference_m(&truth.pos, &estimate.pos);
+    let hor_m = d_ned_m.x.hypot(d_ned_m.y);
+    let hor_pct = if truth.distance_m >= MIN_DISTANCE_FOR_PERCENT_M {
+        100.0 * hor_m / truth.distance_m
+    } else {
+        f64::NAN
+    };
+    NseSample {
+        t_s: truth.t_s,
+        yaw_deg: d_euler_deg.x,
+        pitch_deg: d_euler_deg.y,
+        bank_deg: d_euler_deg.z,
+        att_norm_deg,
+        alt_m: estimate.pos.h_m - truth.pos.h_m,
+        hor_m,
+        hor_pct,
+        distance_m: truth.distance_m,
+    }
+}
+
+/// Observer collecting the NSE at mission times 0, 10, 20, … s (the first output sample at or
+/// after each grid time) and at the end of the flight.
+#[derive(Debug, Clone)]
+pub struct MetricsRecorder {
+    samples: Vec<NseSample>,
+    /// Next grid time to record, s.
+    next_t_s: f64,
+    /// The latest pair seen, kept to record the final instant in [`MetricsRecorder::finish`].
+    last: Option<(TruthSample, NavEstimate)>,
+}
+
+impl Default for MetricsRecorder {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+impl MetricsRecorder {
+    /// An empty recorder.
+    pub fn new() -> Self {
+        Self {
+            samples: Vec::new(),
+            next_t_s: 0.0,
+            last: None,
+        }
+    }
+
+    /// Samples recorded so far (without the final instant unless it fell on the grid).
+    pub fn samples(&self) -> &[NseSample] {
+        &self.samples
+    }
+
+    /// The samples, completed with the last output instant (`t_end`) if it was not on the
+    /// 10-s grid.
+    pub fn finish(mut self) -> Vec<NseSample> {
+        if let Some((truth, estimate)) = self.last.take() {
+            let recorded_up_to = self.samples.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
+            if truth.t_s >= 0.0 && truth.t_s > recorded_up_to + GRID_TOLERANCE_S {
+                self.samples.push(nse(&truth, &estimate));
+            }
+        }
+        self.samples
+    }
+}
+
+impl FlightObserver for MetricsRecorder {
+    fn estimate_sample(&mut self, truth: &TruthSample, estimate: &NavEstimate) {
+        if truth.t_s >= self.next_t_s - GRID_TOLERANCE_S {
+            self.samples.push(nse(truth, estimate));
+            // Next grid point strictly after this sample (robust to output periods that do
+            // not divide 10 s).
+            let k = (truth.t_s / SAMPLE_PERIOD_S + GRID_TOLERANCE_S).floor() + 1.0;
+            self.next_t_s = k * SAMPLE_PERIOD_S;
+        }
+        self.last = Some((*truth, *estimate));
+    }
+}
+
+/// `x` with `decimals` fixed decimals, without a sign on a value that rounds to zero (so
+/// `-0.0` and `-1e-12` print as `0.000`): a byte-stable text form for files and reports.
+/// Non-finite values print as `NaN`, `inf` and `-inf`.
+pub fn format_fixed(x: f64, decimals: usize) -> String {
+    let s = format!("{x:.decimals$}");
+    match s.strip_prefix('-') {
+        Some(rest) if rest.bytes().all(|b| b == b'0' || b == b'.') => rest.to_owned(),
+        _ => s,
+    }
+}

@@ -1,0 +1,720 @@
+//! Monte Carlo batches (issue 3 §4; the paper's 100 runs per scenario, author_impl §6.1 and
+//! §6.4): fly one scenario for a list of seeds in parallel, record the navigation system
+//! error of each run (`crate::metrics`) in its own file so that shards flown on different
+//! machines merge by copying files, and write a manifest of the batch.
+//!
+//! Layout of an output directory (`docs/MONTECARLO.md`):
+//! - `runs/run_0007.csv`: one file per seed, written atomically when the run ends;
+//! - `mc.toml` (or `mc_shard_1of4.toml` for a shard): what was run and how it ended.
+
+use std::fmt::Write as _;
+use std::io;
+use std::panic::{AssertUnwindSafe, catch_unwind};
+use std::path::{Path, PathBuf};
+use std::str::FromStr;
+
+use rayon::prelude::*;
+use serde::{Deserialize, Serialize};
+
+use crate::flight::{Flight, FlightSetup, NavigationMode};
+use crate::metrics::{MetricsRecorder, NseSample, format_fixed};
+
+/// Directory of the per-run files inside a batch directory.
+pub const RUNS_DIR: &str = "runs";
+/// First line of every run file (format name and version).
+pub const RUN_FILE_MAGIC: &str = "# ianav-sim mc run v1";
+/// Column line of a completed run's samples.
+pub const RUN_COLUMNS: &str =
+    "t_s,yaw_deg,pitch_deg,bank_deg,att_norm_deg,alt_m,hor_m,hor_pct,distance_m";
+/// Decimals of each column of [`RUN_COLUMNS`]: 1 ms, 1e-6° (far below the 0.01° the tables
+/// show), 0.1 mm, 1e-6 %, 1 mm.
+const RUN_DECIMALS: [usize; 9] = [3, 6, 6, 6, 6, 4, 4, 6, 3];
+
+/// Errors of a Monte Carlo batch (a failing *flight* is not one: it is a failed run).
+#[derive(Debug, thiserror::Error)]
+pub enum McError {
+    /// `--seeds` is not an inclusive range.
+    #[error("--seeds `{0}`: expected an inclusive range A..B (or A..=B) of seeds with A ≤ B")]
+    SeedRange(String),
+    /// `--shard` is not `i/n` with `1 ≤ i ≤ n`.
+    #[error("--shard `{0}`: expected i/n with 1 ≤ i ≤ n (shards are numbered from 1)")]
+    Shard(String),
+    /// `--runs` disagrees with `--seeds`, or neither is given, or the list is empty.
+    #[error("seeds: {0}")]
+    Seeds(String),
+    /// File system failure, with the file concerned.
+    #[error("{path}: {source}")]
+    Io {
+        /// File or directory.
+        path: String,
+        /// Cause.
+        source: io::Error,
+    },
+    /// The output directory already holds runs of another batch.
+    #[error(
+        "{path} holds the run of seed {seed}, which is not in this batch: use a fresh --out directory"
+    )]
+    ForeignRun {
+        /// Directory of run files.
+        path: String,
+        /// Seed of the foreign run.
+        seed: u64,
+    },
+    /// The thread pool could not be built.
+    #[error("thread pool: {0}")]
+    Pool(String),
+    /// The manifest could not be serialised.
+    #[error("manifest: {0}")]
+    Manifest(#[from] toml::ser::Error),
+}
+
+fn io_error(path: &Path) -> impl FnOnce(io::Error) -> McError + '_ {
+    move |source| McError::Io {
+        path: path.display().to_string(),
+        source,
+    }
+}
+
+/// An inclusive range of seeds, written `A..B` or `A..=B` (both inclusive, as the paper's
+/// "seed orders 1…100").
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct SeedRange {
+    /// First seed.
+    pub first: u64,
+    /// Last seed (included).
+    pub last: u64,
+}
+
+impl FromStr for SeedRange {
+    type Err = McError;
+    fn from_str(s: &str) -> Result<Self, McError> {
+        let bad = || McError::SeedRange(s.to_owned());
+        let (a, b) = s.split_once("..").ok_or_else(bad)?;
+        let b = b.strip_prefix('=').unwrap_or(b);
+        let first: u64 = a.trim().parse().map_err(|_| bad())?;
+        let last: u64 = b.trim().parse().map_err(|_| bad())?;
+        if first > last {
+            return Err(bad());
+        }
+        Ok(Self { first, last })
+    }
+}
+
+impl std::fmt::Display for SeedRange {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}..={}", self.first, self.last)
+    }
+}
+
+/// Shard `index` of `count` (1-based): the k-th seed of the batch list (k from 0) belongs to
+/// shard `k mod count + 1`, so shards are interleaved and of equal size within one seed.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct Shard {
+    /// Shard number, 1 ≤ index ≤ count.
+    pub index: u32,
+    /// Number of shards.
+    pub count: u32,
+}
+
+impl FromStr for Shard {
+    type Err = McError;
+    fn from_str(s: &str) -> Result<Self, McError> {
+        let bad = || McError::Shard(s.to_owned());
+        let (i, n) = s.split_once('/').ok_or_else(bad)?;
+        let index: u32 = i.trim().parse().map_err(|_| bad())?;
+        let count: u32 = n.trim().parse().map_err(|_| bad())?;
+        if index == 0 || index > count {
+            return Err(bad());
+        }
+        Ok(Self { index, count })
+    }
+}
+
+impl std::fmt::Display for Shard {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "{}/{}", self.index, self.count)
+    }
+}
+
+impl Shard {
+    /// The seeds of `seeds` that belong to this shard, in order.
+    pub fn select(&self, seeds: &[u64]) -> Vec<u64> {
+        let (i, n) = (self.index as usize - 1, self.count as usize);
+        seeds
+            .iter()
+            .enumerate()
+            .filter(|(k, _)| k % n == i)
+            .map(|(_, &s)| s)
+            .collect()
+    }
+}
+
+/// Largest batch accepted: the seed list is held in memory, and a typo such as
+/// `--seeds 1..1000000000` should be an error rather than an allocation failure.
+pub const MAX_RUNS: u64 = 1_000_000;
+
+/// The seed list of a batch: `1..=runs`, or the explicit range (whose length must then equal
+/// `runs` if both are given).
+pub fn seed_list(runs: Option<u64>, range: Option<SeedRange>) -> Result<Vec<u64>, McError> {
+    let seeds: Vec<u64> = match (runs, range) {
+        (_, Some(r)) => {
+            let len = (r.last - r.first).saturating_add(1);
+            if len > MAX_RUNS {
+                return Err(McError::Seeds(format!(
+                    "--seeds {r} holds {len} seeds, more than {MAX_RUNS}"
+                )));
+            }
+            if let Some(n) = runs
+                && n != len
+            {
+                return Err(McError::Seeds(format!(
+                    "--runs {n} disagrees with --seeds {r} ({len} seeds)"
+                )));
+            }
+            (r.first..=r.last).collect()
+        }
+        (Some(n), None) if n > MAX_RUNS => {
+            return Err(McError::Seeds(format!(
+                "--runs {n} is more than {MAX_RUNS}"
+            )));
+        }
+        (Some(n), None) => (1..=n).collect(),
+        (None, None) => return Err(McError::Seeds("give --runs or --seeds".into())),
+    };
+    if seeds.is_empty() {
+        return Err(McError::Seeds("the batch has no seeds".into()));
+    }
+    Ok(seeds)
+}
+
+/// How one run ended.
+#[derive(Debug, Clone, PartialEq)]
+pub enum RunOutcome {
+    /// The flight reached the mission end.
+    Completed {
+        /// Ground distance flown from mission time 0, m.
+        distance_m: f64,
+        /// Errors at 0, 10, 20, … s and at the end.
+        samples: Vec<NseSample>,
+    },
+    /// The flight could not be set up, departed, or panicked.
+    Failed {
+        /// What happened (one line).
+        reason: String,
+    },
+}
+
+/// One run of a batch: the content of a run file.
+#[derive(Debug, Clone, PartialEq)]
+pub struct RunRecord {
+    /// Built-in scenario number.
+    pub scenario: u8,
+    /// Scenario name.
+    pub scenario_name: String,
+    /// What guidance and control flew on (`truth` or `ins`).
+    pub navigation: NavigationMode,
+    /// Mission duration configured, s.
+    pub duration_s: f64,
+    /// Seed.
+    pub seed: u64,
+    /// How it ended.
+    pub outcome: RunOutcome,
+}
+
+/// Name of a navigation mode in run files and reports.
+pub fn navigation_name(mode: NavigationMode) -> &'static str {
+    match mode {
+        NavigationMode::Truth => "truth",
+        NavigationMode::Ins => "ins",
+    }
+}
+
+/// File name of the run of `seed` (zero-padded to 4 digits so that listings sort).
+pub fn run_file_name(seed: u64) -> String {
+    format!("run_{seed:04}.csv")
+}
+
+/// Seed of a run file name, if it is one.
+fn seed_of_file_name(name: &str) -> Option<u64> {
+    name.strip_prefix("run_")?
+        .strip_suffix(".csv")?
+        .parse()
+        .ok()
+}
+
+/// Text on one line (reasons and names go into `# key = value` header lines).
+fn one_line(s: &str) -> String {
+    s.replace(['\n', '\r'], " ")
+}
+
+impl RunRecord {
+    /// The run file: `# key = value` header lines, then for a completed run the column line
+    /// and one row per sample, every number with a fixed number of decimals (byte-stable).
+    pub fn to_text(&self) -> String {
+        let mut t = String::with_capacity(4096);
+        let _ = writeln!(t, "{RUN_FILE_MAGIC}");
+        let _ = writeln!(t, "# scenario = {}", self.scenario);
+        let _ = writeln!(t, "# scenario_name = {}", one_line(&self.scenario_name));
+        let _ = writeln!(t, "# navigation = {}", navigation_name(self.navigation));
+        let _ = writeln!(t, "# duration_s = {}", format_fixed(self.duration_s, 3));
+        let _ = writeln!(t, "# seed = {}", self.seed);
+        match &self.outcome {
+            RunOutcome::Failed { reason } => {
+                let _ = writeln!(t, "# status = failed");
+                let _ = writeln!(t, "# reason = {}", one_line(reason));
+            }
+            RunOutcome::Completed {
+                distance_m,
+                samples,
+            } => {
+                let _ = writeln!(t, "# status = completed");
+                let _ = writeln!(t, "# distance_m = {}", format_fixed(*distance_m, 3));
+                let _ = writeln!(t, "{RUN_COLUMNS}");
+                for s in samples {
+                    let values = [
+                        s.t_s,
+                        s.yaw_deg,
+                        s.pitch_deg,
+                        s.bank_deg,
+                        s.att_norm_deg,
+                        s.alt_m,
+                        s.hor_m,
+                        s.hor_pct,
+                        s.distance_m,
+                    ];
+                    for (k, (v, d)) in values.iter().zip(RUN_DECIMALS).enumerate() {
+                        let sep = if k == 0 { "" } else { "," };
+                        let _ = write!(t, "{sep}{}", format_fixed(*v, d));
+                    }
+                    t.push('\n');
+                }
+            }
+        }
+        t
+    }
+
+    /// Parse a run file written by [`RunRecord::to_text`]; the error names the line.
+    pub fn parse(text: &str) -> Result<Self, String> {
+        let mut lines = text.lines().enumerate();
+        match lines.next() {
+            Some((_, RUN_FILE_MAGIC)) => {}
+            _ => return Err(format!("line 1: expected `{RUN_FILE_MAGIC}`")),
+        }
+        let mut header: Vec<(String, String)> = Vec::new();
+        let mut columns_seen = false;
+        let mut samples = Vec::new();
+        for (i, line) in lines {
+            let at = |m: &str| format!("line {}: {m}", i + 1);
+            if !columns_seen {
+                if let Some(kv) = line.strip_prefix("# ") {
+                    let (k, v) = kv
+                        .split_once(" = ")
+                        .ok_or_else(|| at("expected `# key = value`"))?;
+                    header.push((k.to_owned(), v.to_owned()));
+                    continue;
+                }
+                if line != RUN_COLUMNS {
+                    return Err(at(&format!("expected the column line `{RUN_COLUMNS}`")));
+                }
+                columns_seen = true;
+                continue;
+            }
+            let v: Vec<f64> = line
+                .split(',')
+                .map(f64::from_str)
+                .collect::<Result<_, _>>()
+                .map_err(|e| at(&format!("bad number: {e}")))?;
+            let [
+                t_s,
+                yaw_deg,
+                pitch_deg,
+                bank_deg,
+                att_norm_deg,
+                alt_m,
+                hor_m,
+                hor_pct,
+                distance_m,
+            ] = v[..]
+            else {
+                return Err(at(&format!("expected 9 values, got {}", v.len())));
+            };
+            samples.push(NseSample {
+                t_s,
+                yaw_deg,
+                pitch_deg,
+                bank_deg,
+                att_norm_deg,
+                alt_m,
+                hor_m,
+                hor_pct,
+                distance_m,
+            });
+        }
+        let get = |key: &str| -> Result<&str, String> {
+            header
+                .iter()
+                .find(|(k, _)| k == key)
+                .map(|(_, v)| v.as_str())
+                .ok_or_else(|| format!("header: missing `{key}`"))
+        };
+        let num = |key: &str| -> Result<f64, String> {
+            get(key)?
+                .parse::<f64>()
+                .map_err(|e| format!("header `{key}`: {e}"))
+        };
+        let scenario = get("scenario")?
+            .parse::<u8>()
+            .map_err(|e| format!("header `scenario`: {e}"))?;
+        let seed = get("seed")?
+            .parse::<u64>()
+            .map_err(|e| format!("header `seed`: {e}"))?;
+        let outcome = match get("status")? {
+            "completed" => {
+                if !columns_seen {
+                    return Err("completed run without the column line".into());
+                }
+                RunOutcome::Completed {
+                    distance_m: num("distance_m")?,
+                    samples,
+                }
+            }
+            "failed" => RunOutcome::Failed {
+                reason: get("reason")?.to_owned(),
+            },
+            other => return Err(format!("header `status`: unknown `{other}`")),
+        };
+        Ok(Self {
+            scenario,
+            scenario_name: get("scenario_name")?.to_owned(),
+            navigation: match get("navigation")? {
+                "truth" => NavigationMode::Truth,
+                "ins" => NavigationMode::Ins,
+                other => return Err(format!("header `navigation`: unknown `{other}`")),
+            },
+            duration_s: num("duration_s")?,
+            seed,
+            outcome,
+        })
+    }
+}
+
+/// Fly `setup` with `seed`, recording its navigation errors. Setup errors, departures and
+/// panics become a failed run: one bad seed must not stop a batch of hundreds.
+pub fn fly(scenario: u8, setup: &FlightSetup, seed: u64) -> RunRecord {
+    let result = catch_unwind(AssertUnwindSafe(|| {
+        let mut recorder = MetricsRecorder::new();
+        let summary = Flight::new(setup, seed)?.run(&mut recorder, |_| {})?;
+        Ok::<_, crate::flight::FlightError>((summary.distance_m, recorder.finish()))
+    }));
+    let outcome = match result {
+        Ok(Ok((distance_m, samples))) => RunOutcome::Completed {
+            distance_m,
+            samples,
+        },
+        Ok(Err(e)) => RunOutcome::Failed {
+            reason: e.to_string(),
+        },
+        Err(panic) => {
+            let message = panic
+                .downcast_ref::<&str>()
+                .map(|s| (*s).to_owned())
+                .or_else(|| panic.downcast_ref::<String>().cloned())
+                .unwrap_or_default();
+            RunOutcome::Failed {
+                reason: format!("panicked: {message}"),
+            }
+        }
+    };
+    RunRecord {
+        scenario,
+        scenario_name: setup.scenario.name.clone(),
+        navigation: setup.navigation,
+        duration_s: setup.scenario.duration_s,
+        seed,
+        outcome,
+    }
+}
+
+/// A batch to fly.
+#[derive(Debug, Clone)]
+pub struct Batch {
+    /// Built-in scenario number (recorded in the files).
+    pub scenario: u8,
+    /// What every run flies.
+    pub setup: FlightSetup,
+    /// All the seeds of the batch, before sharding.
+    pub seeds: Vec<u64>,
+    /// The shard of `seeds` this process flies (all of them if `None`).
+    pub shard: Option<Shard>,
+    /// Worker threads (all cores if `None`).
+    pub jobs: Option<usize>,
+}
+
+impl Batch {
+    /// The seeds this process flies.
+    pub fn seeds_to_fly(&self) -> Vec<u64> {
+        match self.shard {
+            Some(shard) => shard.select(&self.seeds),
+            None => self.seeds.clone(),
+        }
+    }
+
+    /// Manifest file name: `mc.toml`, or `mc_shard_2of4.toml` for a shard (shards may share
+    /// an output directory).
+    pub fn manifest_name(&self) -> String {
+        match self.shard {
+            Some(s) => format!("mc_shard_{}of{}.toml", s.index, s.count),
+            None => "mc.toml".to_owned(),
+        }
+    }
+}
+
+/// A failed run in the manifest.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct FailedRun {
+    /// Seed.
+    pub seed: u64,
+    /// What happened.
+    pub reason: String,
+}
+
+/// The manifest of a batch (or shard): what was asked and how it ended. Contains nothing
+/// that depends on the machine (no times, paths or thread counts).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct Manifest {
+    /// Program and version.
+    pub generator: String,
+    /// Built-in scenario number.
+    pub scenario: u8,
+    /// Scenario name.
+    pub scenario_name: String,
+    /// Mission duration, s.
+    pub duration_s: f64,
+    /// Number of seeds of the whole batch.
+    pub batch_runs: usize,
+    /// First and last seed of the whole batch.
+    pub batch_seed_range: [u64; 2],
+    /// Shard `i/n` flown, if sharded.
+    #[serde(skip_serializing_if = "Option::is_none", default)]
+    pub shard: Option<String>,
+    /// Seeds flown by this process.
+    pub seeds: Vec<u64>,
+    /// Runs that completed.
+    pub completed: usize,
+    /// Runs that failed.
+    pub failed: Vec<FailedRun>,
+}
+
+/// Write `text` to `path` through a temporary file and a rename, so that an interrupted
+/// batch never leaves a truncated run file.
+fn write_atomic(path: &Path, text: &str) -> Result<(), McError> {
+    let tmp = path.with_extension("csv.tmp");
+    std::fs::write(&tmp, text).map_err(io_error(&tmp))?;
+    std::fs::rename(&tmp, path).map_err(io_error(path))
+}
+
+/// Refuse an output directory holding runs of seeds outside this batch (a stale batch
+/// would otherwise be merged into the report silently). Other shards' runs are fine.
+fn check_no_foreign_runs(runs_dir: &Path, batch_seeds: &[u64]) -> Result<(), McError> {
+    let entries = std::fs::read_dir(runs_dir).map_err(io_error(runs_dir))?;
+    let mut sorted = batch_seeds.to_vec();
+    sorted.sort_unstable();
+    let mut foreign: Option<u64> = None;
+    for entry in entries {
+        let entry = entry.map_err(io_error(runs_dir))?;
+        let name = entry.file_name();
+        if let Some(seed) = name.to_str().and_then(seed_of_file_name)
+            && sorted.binary_search(&seed).is_err()
+        {
+            // The smallest, so that the message does not depend on the listing order.
+            foreign = Some(foreign.map_or(seed, |f| f.min(seed)));
+        }
+    }
+    match foreign {
+        Some(seed) => Err(McError::ForeignRun {
+            path: runs_dir.display().to_string(),
+            seed,
+        }),
+        None => Ok(()),
+    }
+}
+
+/// What a batch did.
+#[derive(Debug, Clone, PartialEq)]
+pub struct BatchSummary {
+    /// The manifest written.
+    pub manifest: Manifest,
+    /// Its path.
+    pub manifest_path: PathBuf,
+}
+
+/// Fly `batch` into `out` with [`fly`], calling `on_done` after each run's file is written.
+pub fn run_batch(
+    batch: &Batch,
+    out: &Path,
+    on_done: impl Fn(&RunRecord) + Sync,
+) -> Result<BatchSummary, McError> {
+    run_batch_with(
+        batch,
+        out,
+        |seed| fly(batch.scenario, &batch.setup, seed),
+        on_done,
+    )
+}
+
+/// [`run_batch`] with the function that flies one seed supplied by the caller (tests inject
+/// failures; other navigation set-ups can plug in here).
+pub fn run_batch_with(
+    batch: &Batch,
+    out: &Path,
+    fly_seed: impl Fn(u64) -> RunRecord + Sync,
+    on_done: impl Fn(&RunRecord) + Sync,
+) -> Result<BatchSummary, McError> {
+    let seeds = batch.seeds_to_fly();
+    let runs_dir = out.join(RUNS_DIR);
+    std::fs::create_dir_all(&runs_dir).map_err(io_error(&runs_dir))?;
+    check_no_foreign_runs(&runs_dir, &batch.seeds)?;
+    let pool = rayon::ThreadPoolBuilder::new()
+        .num_threads(batch.jobs.unwrap_or(0))
+        .build()
+        .map_err(|e| McError::Pool(e.to_string()))?;
+    // Each worker writes its run file as soon as the run ends; only the outcome is kept.
+    let ended: Vec<Result<Option<FailedRun>, McError>> = pool.install(|| {
+        seeds
+            .par_iter()
+            .map(|&seed| {
+                let record = fly_seed(seed);
+                let path = runs_dir.join(run_file_name(record.seed));
+                write_atomic(&path, &record.to_text())?;
+                on_done(&record);
+                Ok(match record.outcome {
+                    RunOutcome::Completed { .. } => None,
+                    RunOutcome::Failed { reason } => Some(FailedRun { seed, reason }),
+                })
+            })
+            .collect()
+    });
+    let mut failed = Vec::new();
+    for e in ended {
+        if let Some(f) = e? {
+            failed.push(f);
+        }
+    }
+    let manifest = Manifest {
+        generator: format!("ianav-sim {}", env!("CARGO_PKG_VERSION")),
+        scenario: batch.scenario,
+        scenario_name: batch.setup.scenario.name.clone(),
+        duration_s: batch.setup.scenario.duration_s,
+        batch_runs: batch.seeds.len(),
+        batch_seed_range: [
+            batch.seeds.iter().copied().min().unwrap_or(0),
+            batch.seeds.iter().copied().max().unwrap_or(0),
+        ],
+        shard: batch.shard.map(|s| s.to_string()),
+        completed: seeds.len() - failed.len(),
+        seeds,
+        failed,
+    };
+    let manifest_path = out.join(batch.manifest_name());
+    let text = toml::to_string(&manifest)?;
+    std::fs::write(&manifest_path, text).map_err(io_error(&manifest_path))?;
+    Ok(BatchSummary {
+        manifest,
+        manifest_path,
+    })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn seed_ranges_and_shards_parse_and_partition() {
+        assert_eq!(
+            "3..7".parse::<SeedRange>().unwrap(),
+            SeedRange { first: 3, last: 7 }
+        );
+        assert_eq!(
+            "3..=7".parse::<SeedRange>().unwrap(),
+            SeedRange { first: 3, last: 7 }
+        );
+        for bad in ["7..3", "3-7", "a..b", "..5"] {
+            assert!(bad.parse::<SeedRange>().is_err(), "{bad}");
+        }
+        for bad in ["0/2", "3/2", "1", "x/2", "1/0"] {
+            assert!(bad.parse::<Shard>().is_err(), "{bad}");
+        }
+        assert_eq!(seed_list(Some(3), None).unwrap(), vec![1, 2, 3]);
+        assert_eq!(
+            seed_list(None, Some("5..6".parse().unwrap())).unwrap(),
+            vec![5, 6]
+        );
+        assert!(seed_list(Some(3), Some("5..6".parse().unwrap())).is_err());
+        assert!(seed_list(Some(0), None).is_err());
+        assert!(seed_list(None, None).is_err());
+        assert!(seed_list(None, Some("0..18446744073709551615".parse().unwrap())).is_err());
+        assert!(seed_list(Some(MAX_RUNS + 1), None).is_err());
+        // Every seed lands in exactly one shard; shards interleave.
+        let seeds: Vec<u64> = (10..=20).collect();
+        let shards: Vec<Vec<u64>> = (1..=3)
+            .map(|i| Shard { index: i, count: 3 }.select(&seeds))
+            .collect();
+        assert_eq!(shards[0], vec![10, 13, 16, 19]);
+        assert_eq!(shards[1], vec![11, 14, 17, 20]);
+        assert_eq!(shards[2], vec![12, 15, 18]);
+    }
+
+    #[test]
+    fn run_files_round_trip_with_nan_and_failures() {
+        let sample = NseSample {
+            t_s: 10.0,
+            yaw_deg: -0.25,
+            pitch_deg: 1e-9,
+            bank_deg: -1e-9,
+            att_norm_deg: 0.5,
+            alt_m: -3.25,
+            hor_m: 12.5,
+            hor_pct: f64::NAN,
+            distance_m: 0.0,
+        };
+        let record = RunRecord {
+            scenario: 2,
+            scenario_name: "two\nlines".into(),
+            navigation: NavigationMode::Ins,
+            duration_s: 500.0,
+            seed: 7,
+            outcome: RunOutcome::Completed {
+                distance_m: 1234.5,
+                samples: vec![sample],
+            },
+        };
+        let text = record.to_text();
+        assert!(text.contains("\n10.000,-0.250000,0.000000,0.000000,0.500000,-3.2500,"));
+        let back = RunRecord::parse(&text).unwrap();
+        assert_eq!(back.seed, 7);
+        assert_eq!(back.scenario_name, "two lines");
+        let RunOutcome::Completed { samples, .. } = &back.outcome else {
+            panic!("should be completed")
+        };
+        assert!(samples[0].hor_pct.is_nan());
+        assert_eq!(samples[0].alt_m, -3.25);
+        // Writing what was parsed reproduces the file byte for byte.
+        assert_eq!(back.to_text(), text);
+        let failed = RunRecord {
+            outcome: RunOutcome::Failed {
+                reason: "departed".into(),
+            },
+            ..record
+        };
+        let back = RunRecord::parse(&failed.to_text()).unwrap();
+        assert_eq!(
+            back.outcome,
+            RunOutcome::Failed {
+                reason: "departed".into()
+            }
+        );
+        assert!(RunRecord::parse("not a run file").is_err());
+        let truncated = text.replace(RUN_COLUMNS, "t_s,yaw_deg");
+        assert!(RunRecord::parse(&truncated).is_err());
+    }
+}
