@@ -177,6 +177,8 @@ pub struct TruthSample {
     pub q_nb: UnitQuaternion<f64>,
     /// Yaw, pitch, bank, rad.
     pub euler_rad: Vector3<f64>,
+    /// Angular velocity relative to NED, body axes, rad/s.
+    pub w_nb_b_rps: Vector3<f64>,
     /// Air-relative motion.
     pub air: AirRelative,
     /// Pressure altitude, m.
@@ -208,6 +210,9 @@ pub trait FlightObserver {
     /// Truth and the navigation estimate guidance and control are flying on, at the output
     /// rate (right after `truth_sample`): what navigation-error metrics are computed from.
     fn estimate_sample(&mut self, _truth: &TruthSample, _estimate: &NavEstimate) {}
+    /// Truth and the full INS solution at the output rate (INS navigation only, once the INS
+    /// has started), right after `estimate_sample`.
+    fn nav_solution(&mut self, _truth: &TruthSample, _solution: &InsSolution) {}
     /// A guidance operation started at mission time `t_s`.
     fn operation_started(&mut self, _t_s: f64, _index: usize, _operation: &Operation) {}
 }
@@ -332,7 +337,7 @@ fn steps_per(field: &'static str, period_s: f64, step_s: f64) -> Result<u64, Fli
 }
 
 /// The estimate guidance and control need, from an INS solution.
-fn estimate_from_ins(sol: &InsSolution) -> NavEstimate {
+pub(crate) fn estimate_from_ins(sol: &InsSolution) -> NavEstimate {
     NavEstimate {
         t_us: sol.t_us,
         pos: sol.pos,
@@ -387,7 +392,7 @@ impl Flight {
             &TurbulenceConfig {
                 factor: scn.turbulence_factor,
             },
-            DrydenParams::default().with_span(setup.aircraft.aero.wing_span_m),
+            DrydenParams::calibrated(scn.turbulence_severity).with_span(setup.aircraft.aero.wing_span_m),
             rng::stream(seed, "turbulence"),
         );
         let mut geo_rng = rng::stream(seed, "geophysics");
@@ -556,6 +561,12 @@ impl Flight {
             v_ned_mps: self.x.q_nb * self.x.v_b_mps,
             q_nb: self.x.q_nb,
             euler_rad: so3::euler_zyx(&self.x.q_nb),
+            w_nb_b_rps: {
+                let v_ned_mps = self.x.q_nb * self.x.v_b_mps;
+                let w_in_n = wgs84::omega_ie_n(self.x.pos.lat_rad)
+                    + wgs84::omega_en_n(&self.x.pos, &v_ned_mps);
+                self.x.w_ib_b_rps - self.x.q_nb.inverse() * w_in_n
+            },
             air: air_relative(&self.x, &self.air),
             hp_m: self.hp_m,
             wind_ned_mps: self.air.wind_ned_mps,
@@ -659,6 +670,9 @@ impl Flight {
             let truth = self.truth_sample();
             observer.truth_sample(&truth);
             observer.estimate_sample(&truth, &self.estimate);
+            if let Some(solution) = &self.ins_solution {
+                observer.nav_solution(&truth, solution);
+            }
         }
         Ok(())
     }

@@ -1,18 +1,22 @@
 //! Files written by `ianav-sim run`: the decimated truth trajectory (CSV), every sensor sample
-//! (the binary log of `ianav::io::sensor_log`), a summary (TOML), PNG plots (ground track,
-//! altitude, airspeed, bank) and a Markdown report tying them together.
+//! (the binary log of `ianav::io::sensor_log`), with the INS in the loop its solution against
+//! the truth (CSV), a summary (TOML), PNG plots (ground track, altitude, airspeed, bank) and a
+//! Markdown report tying them together.
 
 use std::fmt::Write as _;
 use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
+use ianav::ins::InsSolution;
 use ianav::io::sensor_log::SensorLogWriter;
+use ianav::math::so3;
 use ianav::math::wgs84::{self, Geodetic};
 use ianav::sensors::SensorEvent;
 
 use crate::control::Operation;
-use crate::flight::{FlightObserver, FlightSummary, TruthSample};
+use crate::flight::{FlightObserver, FlightSummary, TruthSample, estimate_from_ins};
+use crate::metrics;
 use crate::plots::{self, Chart, PALETTE, Series};
 
 /// Errors writing run outputs.
@@ -40,6 +44,8 @@ pub mod files {
     pub const TRUTH: &str = "truth.csv";
     /// Sensor samples.
     pub const SENSORS: &str = "sensors.bin";
+    /// INS solution, its errors against the truth and its σ (INS navigation only).
+    pub const NAVIGATION: &str = "navigation.csv";
     /// Machine-readable summary.
     pub const SUMMARY: &str = "summary.toml";
     /// Human-readable report.
@@ -50,6 +56,17 @@ const TRUTH_HEADER: &str = "t_us,t_s,lat_deg,lon_deg,h_m,hp_m,v_n_mps,v_e_mps,v_
 bank_deg,tas_mps,aoa_deg,aos_deg,wind_n_mps,wind_e_mps,wind_d_mps,turb_x_mps,turb_y_mps,\
 turb_z_mps,delta_t_k,delta_p_pa,throttle,elevator_deg,aileron_deg,rudder_deg,mass_kg,\
 distance_m,operation";
+
+/// Columns of `navigation.csv`: the INS estimate, its error (estimate − truth; attitude errors
+/// as in the paper's metrics), the 1σ the filter reports, and the filter's internal estimates
+/// next to the truth they estimate where the truth is known to the simulator.
+const NAVIGATION_HEADER: &str = "t_s,gnss_denied,lat_deg,lon_deg,h_m,v_n_mps,v_e_mps,v_d_mps,\
+yaw_deg,pitch_deg,bank_deg,err_yaw_deg,err_pitch_deg,err_bank_deg,err_att_deg,err_h_m,err_hor_m,\
+err_v_n_mps,err_v_e_mps,err_v_d_mps,sigma_att_x_deg,sigma_att_y_deg,sigma_att_z_deg,\
+sigma_v_n_mps,sigma_v_e_mps,sigma_v_d_mps,sigma_n_m,sigma_e_m,sigma_d_m,wind_n_mps,wind_e_mps,\
+true_wind_n_mps,true_wind_e_mps,tas_mps,true_tas_mps,delta_t_k,true_delta_t_k,delta_p_pa,\
+true_delta_p_pa,e_gyr_x_dps,e_gyr_y_dps,e_gyr_z_dps,p_dps,q_dps,r_dps,true_p_dps,true_q_dps,\
+true_r_dps,aoa_deg,true_aoa_deg,aos_deg,true_aos_deg,gnss_nis";
 
 /// Plot points kept per second of flight (the CSV keeps every output sample).
 const PLOT_EVERY_N_SAMPLES: usize = 10;
@@ -72,6 +89,8 @@ pub struct RunWriter {
     dir: PathBuf,
     truth: BufWriter<File>,
     sensors: Option<SensorLogWriter<BufWriter<File>>>,
+    /// Created at the first INS solution.
+    navigation: Option<BufWriter<File>>,
     plot: Vec<PlotPoint>,
     samples_seen: usize,
     operations: Vec<(f64, usize, Operation)>,
@@ -116,6 +135,7 @@ impl RunWriter {
             dir: dir.to_path_buf(),
             truth,
             sensors,
+            navigation: None,
             plot: Vec::new(),
             samples_seen: 0,
             operations: Vec::new(),
@@ -137,6 +157,10 @@ impl RunWriter {
     pub fn finish(mut self, summary: &FlightSummary) -> Result<PathBuf, OutputError> {
         let flushed = self.truth.flush();
         self.keep_error(files::TRUTH, flushed);
+        if let Some(mut nav) = self.navigation.take() {
+            let flushed = nav.flush();
+            self.keep_error(files::NAVIGATION, flushed);
+        }
         if let Some(writer) = self.sensors.take() {
             let finished = writer.finish().map(|_| ());
             self.keep_error(files::SENSORS, finished);
@@ -391,6 +415,99 @@ impl FlightObserver for RunWriter {
             });
         }
         self.samples_seen += 1;
+    }
+
+    fn nav_solution(&mut self, truth: &TruthSample, sol: &InsSolution) {
+        if self.navigation.is_none() {
+            let opened = create(&self.dir.join(files::NAVIGATION)).and_then(|mut w| {
+                writeln!(w, "{NAVIGATION_HEADER}").map_err(|source| OutputError::Io {
+                    path: self.dir.join(files::NAVIGATION).display().to_string(),
+                    source,
+                })?;
+                Ok(w)
+            });
+            match opened {
+                Ok(w) => self.navigation = Some(w),
+                Err(e) => {
+                    if self.first_error.is_none() {
+                        self.first_error = Some(e);
+                    }
+                    return;
+                }
+            }
+        }
+        let est = estimate_from_ins(sol);
+        let e = metrics::nse(truth, &est);
+        let euler_deg = so3::euler_zyx(&sol.q_nb).map(f64::to_degrees);
+        let dv = sol.v_ned_mps - truth.v_ned_mps;
+        let sd = |m: &nalgebra::Matrix3<f64>, i: usize| m[(i, i)].max(0.0).sqrt();
+        let c = &sol.cov;
+        let gyr_dps = sol.e_gyr_rps.map(f64::to_degrees);
+        self.line.clear();
+        let _ = write!(
+            self.line,
+            "{:.3},{},{:.9},{:.9},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},\
+             {:.3},{:.3},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},\
+             {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.2},{:.3e},{:.3e},{:.3e},\
+             {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{}",
+            truth.t_s,
+            u8::from(sol.gnss_denied),
+            sol.pos.lat_rad.to_degrees(),
+            sol.pos.lon_rad.to_degrees(),
+            sol.pos.h_m,
+            sol.v_ned_mps.x,
+            sol.v_ned_mps.y,
+            sol.v_ned_mps.z,
+            euler_deg.x,
+            euler_deg.y,
+            euler_deg.z,
+            e.yaw_deg,
+            e.pitch_deg,
+            e.bank_deg,
+            e.att_norm_deg,
+            e.alt_m,
+            e.hor_m,
+            dv.x,
+            dv.y,
+            dv.z,
+            sd(&c.attitude_rad2, 0).to_degrees(),
+            sd(&c.attitude_rad2, 1).to_degrees(),
+            sd(&c.attitude_rad2, 2).to_degrees(),
+            sd(&c.velocity_m2ps2, 0),
+            sd(&c.velocity_m2ps2, 1),
+            sd(&c.velocity_m2ps2, 2),
+            sd(&c.position_m2, 0),
+            sd(&c.position_m2, 1),
+            sd(&c.position_m2, 2),
+            sol.wind_ned_mps.x,
+            sol.wind_ned_mps.y,
+            truth.wind_ned_mps.x,
+            truth.wind_ned_mps.y,
+            sol.tas_mps,
+            truth.air.tas_mps,
+            sol.delta_t_k,
+            truth.offsets.delta_t_k,
+            sol.delta_p_pa,
+            truth.offsets.delta_p_pa,
+            gyr_dps.x,
+            gyr_dps.y,
+            gyr_dps.z,
+            sol.w_nb_b_rps.x.to_degrees(),
+            sol.w_nb_b_rps.y.to_degrees(),
+            sol.w_nb_b_rps.z.to_degrees(),
+            truth.w_nb_b_rps.x.to_degrees(),
+            truth.w_nb_b_rps.y.to_degrees(),
+            truth.w_nb_b_rps.z.to_degrees(),
+            sol.aoa_rad.to_degrees(),
+            truth.air.aoa_rad.to_degrees(),
+            sol.aos_rad.to_degrees(),
+            truth.air.aos_rad.to_degrees(),
+            sol.gnss_nis.map_or(String::new(), |v| format!("{v:.3}")),
+        );
+        if let Some(w) = self.navigation.as_mut() {
+            let result = writeln!(w, "{}", self.line);
+            self.keep_error(files::NAVIGATION, result);
+        }
     }
 
     fn operation_started(&mut self, t_s: f64, index: usize, operation: &Operation) {

@@ -7,7 +7,7 @@ use ianav::math::angle::wrap_180_deg;
 use serde::{Deserialize, Serialize};
 
 use crate::control::{AileronTarget, ElevatorTarget, Operation, Trigger};
-use crate::env::{OffsetsConfig, WindConfig};
+use crate::env::{OffsetsConfig, Severity, WindConfig};
 use crate::rng::{self, Stream};
 
 /// Errors of scenario configuration.
@@ -144,6 +144,9 @@ pub struct ScenarioConfig {
     pub gnss_loss_s: f64,
     /// Turbulence intensity factor (1 = calibrated Dryden, the paper uses 0.5).
     pub turbulence_factor: f64,
+    /// MIL-F-8785C intensity curve the Dryden field is calibrated on (docs/ENVIRONMENT.md §5).
+    #[serde(default)]
+    pub turbulence_severity: Severity,
     /// Epoch of the magnetic model, decimal year.
     pub magnetic_decimal_year: f64,
     /// Start point.

@@ -193,9 +193,13 @@ impl AttitudeFilter {
         let (h, hm) = self.observation(ctx);
         let mut r = SVector::<f64, 9>::zeros();
         let mut y = SVector::<f64, 9>::zeros();
+        // Gust accelerations of a frozen field scale with the airspeed squared.
+        let turbulence_scale =
+            ctx.v_tashf_n.norm_squared() / cfg.r_accel_turbulence_ref_tas_mps.powi(2);
         for i in 0..3 {
             r[i] = cfg.r_gyro_rad2ps2 * r_scale;
-            r[3 + i] = cfg.r_accel_white_m2ps4 * r_scale + cfg.r_accel_turbulence_m2ps4[i];
+            r[3 + i] = cfg.r_accel_white_m2ps4 * r_scale
+                + cfg.r_accel_turbulence_m2ps4[i] * turbulence_scale;
             r[6 + i] = cfg.r_mag_nt2;
         }
         y.fixed_rows_mut::<3>(0).copy_from(gyro_rps);

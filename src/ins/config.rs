@@ -63,7 +63,7 @@ pub struct AirDataFilterConfig {
 impl Default for AirDataFilterConfig {
     fn default() -> Self {
         Self {
-            q: [1e-15, 1e-15, 1e-15, 1e-4, 1e-15, 1e-3, 1e-4, 1e-6, 1e-6],
+            q: [1e-15, 1e-15, 1e-15, 1e-4, 1e-15, 1e-3, 1e-4, 1e-4, 1e-4],
             tas_noise_sigma_mps: 0.333,
             tas_bias_sigma_mps: 0.333,
             aoa_noise_sigma_deg: 0.333,
@@ -100,10 +100,14 @@ pub struct AttitudeFilterConfig {
     /// White part of the accelerometer R at the reference period, (m/s²)²; scaled like the
     /// gyro's.
     pub r_accel_white_m2ps4: f64,
-    /// Rate-independent part of the accelerometer R per body axis (the neglected time
-    /// derivative of the air-relative velocity: turbulence-derivative variance + margin),
-    /// (m/s²)².
+    /// Rate-independent part of the accelerometer R per body axis at the airspeed
+    /// `r_accel_turbulence_ref_tas_mps`, (m/s²)²: the neglected time derivative of the
+    /// air-relative velocity, whose residual in turbulence is coloured (1–10 s), stated as its
+    /// equivalent white noise at the filter's 100 Hz. Scaled by `(|v − v_lf| / V_ref)²`, the
+    /// frozen-field scaling of gust accelerations (zero at rest). docs/INS.md §3.
     pub r_accel_turbulence_m2ps4: [f64; 3],
+    /// Airspeed at which `r_accel_turbulence_m2ps4` holds, m/s.
+    pub r_accel_turbulence_ref_tas_mps: f64,
     /// Magnetometer R per axis, nT².
     pub r_mag_nt2: f64,
     /// P₀ of each attitude error axis, σ in deg. The authors' 1e-8 per quaternion component
@@ -125,7 +129,8 @@ impl Default for AttitudeFilterConfig {
             q_delta_b_nt2: 1e-12,
             r_gyro_rad2ps2: 5.6e-6,
             r_accel_white_m2ps4: 2.33e-5,
-            r_accel_turbulence_m2ps4: [0.672, 0.863, 0.863],
+            r_accel_turbulence_m2ps4: [5.0, 10.0, 10.0],
+            r_accel_turbulence_ref_tas_mps: 30.0,
             r_mag_nt2: 2e5,
             p0_attitude_sigma_deg: 0.057_735,
             gyro_noise_var_rad2ps2: 5.63e-7,
@@ -166,7 +171,10 @@ pub struct PositionFilterConfig {
     pub gnss_max_consecutive_rejections: u32,
     /// Fixes older than this at the IMU step that consumes them are not fused, s.
     pub gnss_max_lag_s: f64,
-    /// Time constant of the pressure-offset and wind low-pass filters, s.
+    /// Time constant of the pressure-offset and wind low-pass filters, s (a running mean
+    /// until that much time has passed). Long enough to average out the low-frequency
+    /// turbulence (correlation time `L_u/V` ≈ 18 s) that a 3 s filter would freeze into the
+    /// wind at GNSS loss; docs/INS.md §5.
     pub lpf_time_constant_s: f64,
     /// Unmodelled error of the low-frequency wind estimate per horizontal axis (dominated by
     /// the Pitot bias, which no filter estimates), added to the frozen wind's variance at
@@ -189,7 +197,7 @@ impl Default for PositionFilterConfig {
             gnss_timeout_s: 1.5,
             gnss_max_consecutive_rejections: 5,
             gnss_max_lag_s: 0.5,
-            lpf_time_constant_s: 3.0,
+            lpf_time_constant_s: 60.0,
             wind_bias_sigma_mps: 0.333,
         }
     }
@@ -331,6 +339,10 @@ impl InsConfig {
         non_negative("attitude.q_delta_b_nt2", t.q_delta_b_nt2)?;
         positive("attitude.r_gyro_rad2ps2", t.r_gyro_rad2ps2)?;
         positive("attitude.r_accel_white_m2ps4", t.r_accel_white_m2ps4)?;
+        positive(
+            "attitude.r_accel_turbulence_ref_tas_mps",
+            t.r_accel_turbulence_ref_tas_mps,
+        )?;
         for (i, r) in t.r_accel_turbulence_m2ps4.iter().enumerate() {
             non_negative(&format!("attitude.r_accel_turbulence_m2ps4[{i}]"), *r)?;
         }

@@ -103,10 +103,17 @@ pub(crate) fn symmetrize<const N: usize>(p: &mut SMatrix<f64, N, N>) {
 /// First-order discrete low-pass filter (author_impl §1.3, "LPF_Tf"):
 /// `y_k = β y_{k−1} + α u_k` with `α = Δt/(T_f + Δt)`, `β = T_f/(T_f + Δt)`, initialised with
 /// an explicit value. Δt is passed at each step, so the filter is rate independent.
+///
+/// Unlike the authors' filter it starts as the running mean of the initial value and the
+/// inputs (`α = Δt/(t + 2Δt)` after `t` seconds of steps, i.e. 1/2, 1/3, … for equal steps)
+/// and becomes the exponential filter once `t + Δt` reaches `T_f`, so that a long time
+/// constant does not leave the output dominated by the first sample.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub(crate) struct LowPass<T> {
     /// Time constant `T_f`, s.
     tau_s: f64,
+    /// Time stepped so far, s.
+    elapsed_s: f64,
     /// Current output.
     y: T,
 }
@@ -117,12 +124,18 @@ where
 {
     /// Filter with time constant `tau_s` (s, ≥ 0) and initial output `y0`.
     pub fn new(tau_s: f64, y0: T) -> Self {
-        Self { tau_s, y: y0 }
+        Self {
+            tau_s,
+            elapsed_s: 0.0,
+            y: y0,
+        }
     }
 
     /// One step of `dt_s` (s, ≥ 0) with input `u`; returns the new output.
     pub fn step(&mut self, u: T, dt_s: f64) -> T {
-        let den = self.tau_s + dt_s;
+        let window_s = self.tau_s.min(self.elapsed_s + dt_s);
+        self.elapsed_s += dt_s;
+        let den = window_s + dt_s;
         if den > 0.0 {
             let alpha = dt_s / den;
             self.y = self.y * (1.0 - alpha) + u * alpha;
@@ -200,15 +213,31 @@ mod tests {
     }
 
     #[test]
-    fn low_pass_step_response() {
-        // After n steps of a unit step, y = 1 − βⁿ; with T_f = 3 s, Δt = 0.01 s, n = 300:
-        // β³⁰⁰ = (3/3.01)³⁰⁰ ≈ e^{−0.997} ≈ 0.369.
+    fn low_pass_averages_then_filters() {
+        // Running mean of y0 and the inputs until T_f...
+        let mut avg = LowPass::new(0.05, 0.0);
+        let inputs = [3.0, 6.0, 9.0, 12.0];
+        for (k, u) in inputs.iter().enumerate() {
+            let y = avg.step(*u, 0.01);
+            let mean = inputs[..=k].iter().sum::<f64>() / (k as f64 + 2.0);
+            assert!((y - mean).abs() < 1e-12, "step {k}: {y} vs {mean}");
+        }
+        // ... then the exponential filter (window 0.05 s reached: α = 0.01/0.06).
+        let y_prev = avg.value();
+        let y = avg.step(1.0, 0.01);
+        assert!((y - (y_prev * (1.0 - 1.0 / 6.0) + 1.0 / 6.0)).abs() < 1e-12);
+        // Long after T_f the step response is the exponential one: from y_m at time m·Δt,
+        // n more unit steps give 1 − (1 − y_m)·βⁿ with β = T_f/(T_f + Δt).
         let mut lp = LowPass::new(3.0, Vector3::zeros());
         for _ in 0..300 {
             lp.step(Vector3::new(1.0, 2.0, 0.0), 0.01);
         }
+        let y_m = lp.value().x;
+        for _ in 0..300 {
+            lp.step(Vector3::new(1.0, 2.0, 0.0), 0.01);
+        }
         let beta: f64 = 3.0 / 3.01;
-        let expect = 1.0 - beta.powi(300);
+        let expect = 1.0 - (1.0 - y_m) * beta.powi(300);
         assert!((lp.value().x - expect).abs() < 1e-12);
         assert!((lp.value().y - 2.0 * expect).abs() < 1e-12);
         // Zero time constant and zero step: output passes through / holds.

@@ -336,7 +336,7 @@ fn raw_delta_p(hp_m: f64, var_hp: f64, h_m: f64, var_h: f64, delta_t_k: f64) -> 
 }
 
 impl GnssPhaseEstimates {
-    /// Start both filters at their first raw values.
+    /// Start both filters at their first raw values (running means until `tau_s`).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         tau_s: f64,

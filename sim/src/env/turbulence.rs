@@ -108,11 +108,13 @@ pub struct TurbulenceConfig {
 
 /// Turbulence severity: a curve of the MIL-F-8785C high-altitude probability-of-exceedance
 /// table.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+#[derive(Debug, Clone, Copy, Default, PartialEq, Eq, Serialize, Deserialize)]
+#[serde(rename_all = "lowercase")]
 pub enum Severity {
     /// Probability of exceedance 10⁻² (σ ≈ 1.8 m/s at 3 km).
     Light,
     /// Probability of exceedance 10⁻³ (σ ≈ 2.9 m/s at 3 km).
+    #[default]
     Moderate,
     /// Probability of exceedance 10⁻⁵ (σ ≈ 7.2 m/s at 3 km).
     Severe,
