@@ -5,10 +5,12 @@
 use std::hint::black_box;
 
 use criterion::{BatchSize, Criterion, criterion_group, criterion_main};
-use ianav_sim::flight::{Flight, FlightSetup, NoObserver};
+use ianav_sim::flight::{Flight, FlightSetup, NavigationMode, NoObserver};
 
 fn one_second_of_flight(c: &mut Criterion) {
-    let setup = FlightSetup::builtin(1).expect("built-in scenario");
+    // The simulator alone (the INS has its own bench, benches/ins.rs in the ianav crate).
+    let mut setup = FlightSetup::builtin(1).expect("built-in scenario");
+    setup.navigation = NavigationMode::Truth;
     c.bench_function("flight/1 s of scenario #1 (500 steps)", |b| {
         b.iter_batched(
             || Flight::new(&setup, 1).expect("flight set-up"),

@@ -107,9 +107,9 @@ impl Default for RatesConfig {
 pub enum NavigationMode {
     /// The simulator's truth (tests of the aircraft and control that must not depend on
     /// the navigation).
-    #[default]
     Truth,
-    /// The GNSS-denied INS fed with the simulated sensors (the paper's set-up).
+    /// The GNSS-denied INS fed with the simulated sensors (the paper's set-up; default).
+    #[default]
     Ins,
 }
 
@@ -392,7 +392,8 @@ impl Flight {
             &TurbulenceConfig {
                 factor: scn.turbulence_factor,
             },
-            DrydenParams::calibrated(scn.turbulence_severity).with_span(setup.aircraft.aero.wing_span_m),
+            DrydenParams::calibrated(scn.turbulence_severity)
+                .with_span(setup.aircraft.aero.wing_span_m),
             rng::stream(seed, "turbulence"),
         );
         let mut geo_rng = rng::stream(seed, "geophysics");

@@ -53,7 +53,7 @@ struct SetupArgs {
     config_dir: Option<PathBuf>,
     /// What guidance and control fly on: the simulator's truth, or the INS fed with the
     /// simulated sensors.
-    #[arg(long, value_enum, default_value_t = Navigation::Truth)]
+    #[arg(long, value_enum, default_value_t = Navigation::Ins)]
     navigation: Navigation,
 }
 

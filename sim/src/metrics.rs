@@ -4,6 +4,7 @@
 //! vertical error, horizontal error in metres and as a percentage of the distance flown.
 //! Errors are `estimate − truth`.
 
+use ianav::ins::InsSolution;
 use ianav::math::{angle, so3, wgs84};
 
 use crate::control::NavEstimate;
@@ -74,6 +75,19 @@ pub fn nse(truth: &TruthSample, estimate: &NavEstimate) -> NseSample {
         hor_pct,
         distance_m: truth.distance_m,
     }
+}
+
+/// Normalised estimation error squared of the INS attitude and velocity: `eᵀ P⁻¹ e` with
+/// the attitude error in the filter's own tangent convention (`q_truth = q̂ ∘ Exp(δθ)`, so
+/// `δθ = Log(q̂⁻¹ q_truth)`) against its 3×3 attitude covariance, and the NED ground-velocity
+/// error against the velocity covariance. Each is χ²(3) when the filter is consistent. `None`
+/// for a covariance that cannot be inverted.
+pub fn nees(truth: &TruthSample, sol: &InsSolution) -> Option<(f64, f64)> {
+    let d_theta = so3::log(&(sol.q_nb.inverse() * truth.q_nb));
+    let d_v = sol.v_ned_mps - truth.v_ned_mps;
+    let att = sol.cov.attitude_rad2.try_inverse()?;
+    let vel = sol.cov.velocity_m2ps2.try_inverse()?;
+    Some((d_theta.dot(&(att * d_theta)), d_v.dot(&(vel * d_v))))
 }
 
 /// Observer collecting the NSE at mission times 0, 10, 20, … s (the first output sample at or

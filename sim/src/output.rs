@@ -66,7 +66,7 @@ err_v_n_mps,err_v_e_mps,err_v_d_mps,sigma_att_x_deg,sigma_att_y_deg,sigma_att_z_
 sigma_v_n_mps,sigma_v_e_mps,sigma_v_d_mps,sigma_n_m,sigma_e_m,sigma_d_m,wind_n_mps,wind_e_mps,\
 true_wind_n_mps,true_wind_e_mps,tas_mps,true_tas_mps,delta_t_k,true_delta_t_k,delta_p_pa,\
 true_delta_p_pa,e_gyr_x_dps,e_gyr_y_dps,e_gyr_z_dps,p_dps,q_dps,r_dps,true_p_dps,true_q_dps,\
-true_r_dps,aoa_deg,true_aoa_deg,aos_deg,true_aos_deg,gnss_nis";
+true_r_dps,aoa_deg,true_aoa_deg,aos_deg,true_aos_deg,nees_att,nees_vel,gnss_nis";
 
 /// Plot points kept per second of flight (the CSV keeps every output sample).
 const PLOT_EVERY_N_SAMPLES: usize = 10;
@@ -443,13 +443,14 @@ impl FlightObserver for RunWriter {
         let sd = |m: &nalgebra::Matrix3<f64>, i: usize| m[(i, i)].max(0.0).sqrt();
         let c = &sol.cov;
         let gyr_dps = sol.e_gyr_rps.map(f64::to_degrees);
+        let nees = metrics::nees(truth, sol).unwrap_or((f64::NAN, f64::NAN));
         self.line.clear();
         let _ = write!(
             self.line,
             "{:.3},{},{:.9},{:.9},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.5},\
              {:.3},{:.3},{:.4},{:.4},{:.4},{:.5},{:.5},{:.5},{:.4},{:.4},{:.4},{:.3},{:.3},{:.3},\
              {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.2},{:.3e},{:.3e},{:.3e},\
-             {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{}",
+             {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{}",
             truth.t_s,
             u8::from(sol.gnss_denied),
             sol.pos.lat_rad.to_degrees(),
@@ -502,6 +503,8 @@ impl FlightObserver for RunWriter {
             truth.air.aoa_rad.to_degrees(),
             sol.aos_rad.to_degrees(),
             truth.air.aos_rad.to_degrees(),
+            nees.0,
+            nees.1,
             sol.gnss_nis.map_or(String::new(), |v| format!("{v:.3}")),
         );
         if let Some(w) = self.navigation.as_mut() {

@@ -29,7 +29,7 @@ use ianav_sim::control::{
     Operation, Trigger, TruthNavigation,
 };
 use ianav_sim::env::{Turbulence, TurbulenceConfig};
-use ianav_sim::flight::{Flight, FlightObserver, FlightSetup, TruthSample};
+use ianav_sim::flight::{Flight, FlightObserver, FlightSetup, NavigationMode, TruthSample};
 use ianav_sim::scenario::Mission;
 use nalgebra::Vector3;
 
@@ -58,6 +58,8 @@ fn fly(
     turbulence: f64,
 ) -> Vec<TruthSample> {
     let mut setup = FlightSetup::builtin(1).unwrap();
+    // The loops are tested on the truth: the INS has its own tests (ins_in_loop).
+    setup.navigation = NavigationMode::Truth;
     setup.scenario.warmup_s = WARMUP_S;
     setup.scenario.duration_s = duration_s;
     setup.scenario.turbulence_factor = turbulence;

@@ -94,8 +94,10 @@ pub struct AttitudeFilterConfig {
     pub q_e_mag_nt2: f64,
     /// Q̃ of the magnetic-model error `ΔB_n` per axis, nT².
     pub q_delta_b_nt2: f64,
-    /// Gyro R per axis at the reference period ((rad/s)², ≈ 10× the white-noise variance);
-    /// scaled by `reference_period_s / Δt_imu`.
+    /// Gyro R per axis at the reference period, (rad/s)²: the white-noise variance (the
+    /// authors' 10× makes the filter believe its attitude random-walks √10 faster than it
+    /// does and its attitude covariance pessimistic, docs/INS.md); scaled by
+    /// `reference_period_s / Δt_imu`.
     pub r_gyro_rad2ps2: f64,
     /// White part of the accelerometer R at the reference period, (m/s²)²; scaled like the
     /// gyro's.
@@ -108,7 +110,9 @@ pub struct AttitudeFilterConfig {
     pub r_accel_turbulence_m2ps4: [f64; 3],
     /// Airspeed at which `r_accel_turbulence_m2ps4` holds, m/s.
     pub r_accel_turbulence_ref_tas_mps: f64,
-    /// Magnetometer R per axis, nT².
+    /// Magnetometer R per axis, nT² (10× the authors': it must cover the unmodelled,
+    /// heading-dependent soft-iron error, tens of nT for minutes, and keeps transient tilt
+    /// errors from leaking into yaw through the 70° field inclination; docs/INS.md).
     pub r_mag_nt2: f64,
     /// P₀ of each attitude error axis, σ in deg. The authors' 1e-8 per quaternion component
     /// (0.0115° per axis) is ~5× below the initial error they draw (0.1°·N(0,1) in norm,
@@ -127,11 +131,11 @@ impl Default for AttitudeFilterConfig {
             q_e_gyr_rad2ps2: 3e-14,
             q_e_mag_nt2: 1e-14,
             q_delta_b_nt2: 1e-12,
-            r_gyro_rad2ps2: 5.6e-6,
+            r_gyro_rad2ps2: 5.63e-7,
             r_accel_white_m2ps4: 2.33e-5,
             r_accel_turbulence_m2ps4: [5.0, 10.0, 10.0],
             r_accel_turbulence_ref_tas_mps: 30.0,
-            r_mag_nt2: 2e5,
+            r_mag_nt2: 2e6,
             p0_attitude_sigma_deg: 0.057_735,
             gyro_noise_var_rad2ps2: 5.63e-7,
         }
@@ -467,7 +471,7 @@ mod tests {
         };
         let bad = FILE.replace("gnss_timeout_s = 1.5", "gnss_timeout_s = -1.0");
         assert_eq!(field(&bad), "position.gnss_timeout_s");
-        let bad = FILE.replace("r_mag_nt2 = 2e5", "r_mag_nt2 = nan");
+        let bad = FILE.replace("r_mag_nt2 = 2e6", "r_mag_nt2 = nan");
         assert_eq!(field(&bad), "attitude.r_mag_nt2");
         assert_eq!(field("reference_period_s = 0.0"), "reference_period_s");
         // Unknown keys and incomplete sections are structural errors.

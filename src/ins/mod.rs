@@ -33,6 +33,7 @@ pub use config::{
 };
 
 use crate::env::magnetic::{MagneticError, MagneticGrid, MagneticModel};
+use crate::math::so3;
 use crate::math::wgs84::{self, Geodetic};
 use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, SensorEvent};
 use air_data::AirDataFilter;
@@ -174,7 +175,8 @@ impl InsInit {
 /// Covariances reported with each solution (first-order, from the filters).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InsCovariance {
-    /// Attitude error `δθ` with `q_nb = q̂_nb ∘ Exp(δθ)` (body tangent), rad².
+    /// Attitude error `δθ` with `q_nb = q̂_nb ∘ Exp(δθ)` (body tangent), rad²: the attitude
+    /// filter's covariance plus the tilt implied by the accelerometer-error uncertainty.
     pub attitude_rad2: Matrix3<f64>,
     /// Body rate `w_nb_b`, (rad/s)².
     pub w_nb_b_rad2ps2: Matrix3<f64>,
@@ -780,7 +782,7 @@ fn solution(
 ) -> InsSolution {
     let ax = core.air.state();
     let pa = core.att.covariance();
-    let (pos, v_n, f_b, e_acc, wind, dp, p_pos, p_vel, gnss_denied) = match &core.position {
+    let (pos, v_n, f_b, e_acc, wind, dp, p_pos, p_vel, p_eacc, gnss_denied) = match &core.position {
         PositionMode::Gnss { filter, est } => (
             filter.pos(),
             filter.v_n(),
@@ -790,6 +792,7 @@ fn solution(
             est.delta_p(),
             filter.position_cov(),
             filter.velocity_cov(),
+            filter.e_acc_cov(),
             false,
         ),
         PositionMode::Denied(nav) => (
@@ -801,10 +804,22 @@ fn solution(
             nav.delta_p(),
             nav.position_cov(),
             nav.velocity_cov(),
+            nav.e_acc_cov(),
             true,
         ),
     };
     let block = |i: usize| -> Matrix3<f64> { pa.fixed_view::<3, 3>(i, i).into_owned() };
+    // The attitude filter takes E_acc as known; an error δE in it tilts the attitude by
+    // δθ = −[f]× δE / |f|² (the rotation that explains δE as a turn of the specific force),
+    // a persistent error its own covariance does not contain.
+    let f_norm2 = f_b.norm_squared();
+    let tilt_from_eacc = if f_norm2 > 1.0 {
+        let j = -so3::skew(&f_b) / f_norm2;
+        let c = j * p_eacc * j.transpose();
+        (c + c.transpose()) * 0.5
+    } else {
+        Matrix3::zeros()
+    };
     InsSolution {
         t_us: imu.t_us,
         dt_s,
@@ -830,7 +845,7 @@ fn solution(
         gnss_denied,
         gnss_nis,
         cov: InsCovariance {
-            attitude_rad2: block(attitude::TH),
+            attitude_rad2: block(attitude::TH) + tilt_from_eacc,
             w_nb_b_rad2ps2: block(attitude::W),
             e_gyr_rad2ps2: block(attitude::EG),
             velocity_m2ps2: p_vel,

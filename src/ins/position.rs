@@ -302,6 +302,10 @@ impl GnssFilter {
     pub fn velocity_cov(&self) -> Matrix3<f64> {
         self.p.fixed_view::<3, 3>(V, V).into_owned()
     }
+    /// Accelerometer-error covariance, (m/s²)².
+    pub fn e_acc_cov(&self) -> Matrix3<f64> {
+        self.p.fixed_view::<3, 3>(EA, EA).into_owned()
+    }
 }
 
 /// Low-pass estimates of the pressure offset and the low-frequency wind while GNSS is
@@ -592,6 +596,10 @@ impl DeniedNav {
             .copy_from(&self.p_pw.fixed_view::<2, 2>(0, 0));
         c[(2, 2)] = self.h_var;
         c
+    }
+    /// Accelerometer-error covariance, (m/s²)².
+    pub fn e_acc_cov(&self) -> Matrix3<f64> {
+        self.p6.fixed_view::<3, 3>(3, 3).into_owned()
     }
     /// NED velocity covariance, (m/s)².
     pub fn velocity_cov(&self) -> Matrix3<f64> {
