@@ -83,6 +83,15 @@ struct PlotPoint {
     pitch_deg: f64,
 }
 
+/// One navigation-error point per second of flight (INS navigation only).
+#[derive(Debug, Clone, Copy)]
+struct NavPoint {
+    nse: metrics::NseSample,
+    /// Horizontal 1σ the INS reports, m.
+    sigma_hor_m: f64,
+    gnss_denied: bool,
+}
+
 /// Observer that writes a run directory as the flight goes (memory stays flat: the trajectory
 /// and samples stream to disk; only one plot point per second stays in memory).
 pub struct RunWriter {
@@ -91,6 +100,11 @@ pub struct RunWriter {
     sensors: Option<SensorLogWriter<BufWriter<File>>>,
     /// Created at the first INS solution.
     navigation: Option<BufWriter<File>>,
+    nav_points: Vec<NavPoint>,
+    nav_samples_seen: usize,
+    /// The last point with GNSS and the last point of all.
+    nav_before_loss: Option<NavPoint>,
+    nav_last: Option<NavPoint>,
     plot: Vec<PlotPoint>,
     samples_seen: usize,
     operations: Vec<(f64, usize, Operation)>,
@@ -136,6 +150,10 @@ impl RunWriter {
             truth,
             sensors,
             navigation: None,
+            nav_points: Vec::new(),
+            nav_samples_seen: 0,
+            nav_before_loss: None,
+            nav_last: None,
             plot: Vec::new(),
             samples_seen: 0,
             operations: Vec::new(),
@@ -258,6 +276,50 @@ impl RunWriter {
             plots::draw(&self.dir.join(file), &chart, 900, 560)?;
             drawn.push((file, caption));
         }
+        if !self.nav_points.is_empty() {
+            let n = |f: fn(&NavPoint) -> f64| -> Vec<(f64, f64)> {
+                self.nav_points.iter().map(|p| (p.nse.t_s, f(p))).collect()
+            };
+            let nav_charts = [
+                (
+                    "nav_attitude_error.png",
+                    "INS attitude error",
+                    Chart {
+                        title: "INS attitude error (estimate − truth)",
+                        x_label: "mission time [s]",
+                        y_label: "error [deg]",
+                        series: vec![
+                            line("yaw", n(|p| p.nse.yaw_deg), 0),
+                            line("pitch", n(|p| p.nse.pitch_deg), 1),
+                            line("bank", n(|p| p.nse.bank_deg), 2),
+                        ],
+                        equal_axes: false,
+                    },
+                ),
+                (
+                    "nav_position_error.png",
+                    "INS position error",
+                    Chart {
+                        title: "INS position error (estimate − truth)",
+                        x_label: "mission time [s]",
+                        y_label: "error [m]",
+                        series: vec![
+                            line("horizontal", n(|p| p.nse.hor_m), 0),
+                            Series {
+                                dashed: true,
+                                ..line("horizontal 1σ reported", n(|p| p.sigma_hor_m), 0)
+                            },
+                            line("altitude", n(|p| p.nse.alt_m), 1),
+                        ],
+                        equal_axes: false,
+                    },
+                ),
+            ];
+            for (file, caption, chart) in nav_charts {
+                plots::draw(&self.dir.join(file), &chart, 900, 560)?;
+                drawn.push((file, caption));
+            }
+        }
         Ok(drawn)
     }
 
@@ -296,6 +358,34 @@ impl RunWriter {
                 describe_trigger(op)
             );
         }
+        if let Some(last) = self.nav_last {
+            let _ = writeln!(
+                r,
+                "\n## Navigation error (INS in the loop)\n\nEstimate − truth; attitude errors as the paper's (Euler-angle differences and the norm of `Log(q_truth⁻¹ q_est)`); horizontal 1σ as the INS reports it.\n\n| | yaw [deg] | pitch [deg] | bank [deg] | attitude norm [deg] | altitude [m] | horizontal [m] | horizontal [% of distance] | horizontal 1σ reported [m] |\n|---|---|---|---|---|---|---|---|---|"
+            );
+            let rows = [
+                ("last step with GNSS", self.nav_before_loss),
+                ("end of flight", Some(last)),
+            ];
+            for (name, p) in rows {
+                let Some(p) = p else { continue };
+                let e = &p.nse;
+                let _ = writeln!(
+                    r,
+                    "| {name} (t = {:.1} s{}) | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {:.1} | {} | {:.1} |",
+                    e.t_s,
+                    if p.gnss_denied { ", GNSS denied" } else { "" },
+                    e.yaw_deg,
+                    e.pitch_deg,
+                    e.bank_deg,
+                    e.att_norm_deg,
+                    e.alt_m,
+                    e.hor_m,
+                    metrics::format_fixed(e.hor_pct, 2),
+                    p.sigma_hor_m
+                );
+            }
+        }
         let _ = writeln!(r, "\n## Plots\n");
         for (file, caption) in plots {
             let _ = writeln!(r, "![{caption}]({file})\n");
@@ -303,10 +393,18 @@ impl RunWriter {
         let _ = writeln!(
             r,
             "Files: `{}` (truth every output period), `{}` (sensor samples, format in \
-             `ianav::io::sensor_log`), `{}`.",
+             `ianav::io::sensor_log`), `{}`{}.",
             files::TRUTH,
             files::SENSORS,
-            files::SUMMARY
+            files::SUMMARY,
+            if self.nav_last.is_some() {
+                format!(
+                    ", `{}` (INS solution, errors, reported σ and NEES every output period)",
+                    files::NAVIGATION
+                )
+            } else {
+                String::new()
+            }
         );
         r
     }
@@ -444,6 +542,19 @@ impl FlightObserver for RunWriter {
         let c = &sol.cov;
         let gyr_dps = sol.e_gyr_rps.map(f64::to_degrees);
         let nees = metrics::nees(truth, sol).unwrap_or((f64::NAN, f64::NAN));
+        let point = NavPoint {
+            nse: e,
+            sigma_hor_m: (sd(&c.position_m2, 0).powi(2) + sd(&c.position_m2, 1).powi(2)).sqrt(),
+            gnss_denied: sol.gnss_denied,
+        };
+        if !sol.gnss_denied {
+            self.nav_before_loss = Some(point);
+        }
+        self.nav_last = Some(point);
+        if truth.t_s >= 0.0 && self.nav_samples_seen.is_multiple_of(PLOT_EVERY_N_SAMPLES) {
+            self.nav_points.push(point);
+        }
+        self.nav_samples_seen += 1;
         self.line.clear();
         let _ = write!(
             self.line,

@@ -184,6 +184,10 @@ pub struct PositionFilterConfig {
     /// the Pitot bias, which no filter estimates), added to the frozen wind's variance at
     /// GNSS loss, m/s.
     pub wind_bias_sigma_mps: f64,
+    /// Slowly varying GNSS position error per axis (ionosphere) that the filter cannot
+    /// average out, added to the reported position variance, to the altitude variance behind
+    /// Δp and to the dead-reckoning start, m (author_impl §2.5: 8 m at the start of a run).
+    pub gnss_bias_sigma_m: f64,
 }
 
 impl Default for PositionFilterConfig {
@@ -203,6 +207,7 @@ impl Default for PositionFilterConfig {
             gnss_max_lag_s: 0.5,
             lpf_time_constant_s: 60.0,
             wind_bias_sigma_mps: 0.333,
+            gnss_bias_sigma_m: 8.0,
         }
     }
 }
@@ -374,6 +379,7 @@ impl InsConfig {
         non_negative("position.gnss_max_lag_s", p.gnss_max_lag_s)?;
         non_negative("position.lpf_time_constant_s", p.lpf_time_constant_s)?;
         non_negative("position.wind_bias_sigma_mps", p.wind_bias_sigma_mps)?;
+        non_negative("position.gnss_bias_sigma_m", p.gnss_bias_sigma_m)?;
         let l = &self.limits;
         positive("limits.max_specific_force_mps2", l.max_specific_force_mps2)?;
         positive("limits.max_angular_rate_rps", l.max_angular_rate_rps)?;

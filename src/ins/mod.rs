@@ -550,7 +550,7 @@ impl Ins {
             air.state()[air_data::HP],
             air.covariance()[(air_data::HP, air_data::HP)],
             gnss.pos().h_m,
-            gnss.position_cov()[(2, 2)],
+            gnss.position_cov_with_bias(&cfg.position)[(2, 2)],
             air.delta_t_k(),
             wind,
             gnss.velocity_cov() + v_air_cov,
@@ -577,7 +577,7 @@ impl Ins {
             last_fix_us,
             consecutive_gated: 0,
         };
-        let sol = solution(&core, 0.0, false, None, s);
+        let sol = solution(cfg, &core, 0.0, false, None, s);
         self.pending_mag = None;
         self.core = Some(Box::new(core));
         Some(sol)
@@ -722,7 +722,7 @@ fn run_step(
                 hp_m,
                 p_air[(air_data::HP, air_data::HP)],
                 filter.pos().h_m,
-                filter.position_cov()[(2, 2)],
+                filter.position_cov_with_bias(&cfg.position)[(2, 2)],
                 delta_t_k,
                 filter.v_n() - v_air,
                 filter.velocity_cov() + v_air_cov,
@@ -769,11 +769,12 @@ fn run_step(
         }
     }
     core.t_us = step.t_us;
-    solution(core, step.dt_s, step.gap, gnss_nis, imu)
+    solution(cfg, core, step.dt_s, step.gap, gnss_nis, imu)
 }
 
 /// Assemble the solution from the filters.
 fn solution(
+    cfg: &InsConfig,
     core: &Core,
     dt_s: f64,
     gap: bool,
@@ -790,7 +791,7 @@ fn solution(
             filter.e_acc(),
             est.wind(),
             est.delta_p(),
-            filter.position_cov(),
+            filter.position_cov_with_bias(&cfg.position),
             filter.velocity_cov(),
             filter.e_acc_cov(),
             false,

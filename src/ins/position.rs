@@ -306,6 +306,10 @@ impl GnssFilter {
     pub fn e_acc_cov(&self) -> Matrix3<f64> {
         self.p.fixed_view::<3, 3>(EA, EA).into_owned()
     }
+    /// Position covariance with the GNSS bias the filter does not estimate, m².
+    pub fn position_cov_with_bias(&self, cfg: &PositionFilterConfig) -> Matrix3<f64> {
+        self.position_cov() + Matrix3::identity() * cfg.gnss_bias_sigma_m.powi(2)
+    }
 }
 
 /// Low-pass estimates of the pressure offset and the low-frequency wind while GNSS is
@@ -460,7 +464,7 @@ impl DeniedNav {
         let (delta_p_pa, delta_p_var) = est.delta_p();
         let mut p_pw = SMatrix::<f64, 6, 6>::zeros();
         p_pw.fixed_view_mut::<3, 3>(0, 0)
-            .copy_from(&gnss.position_cov());
+            .copy_from(&gnss.position_cov_with_bias(cfg));
         p_pw.fixed_view_mut::<3, 3>(3, 3).copy_from(&wind_cov);
         Self {
             f_b: gnss.f_b,
