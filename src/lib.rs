@@ -13,3 +13,4 @@ pub mod ins;
 pub mod io;
 pub mod math;
 pub mod sensors;
+pub mod vision;

@@ -2,13 +2,15 @@
 //! environment and the 6-DOF aircraft integrated at 500 Hz, sensors sampled at 100 Hz (GNSS at
 //! 1 Hz until it is lost), guidance and control at 50 Hz closing the loop on the *navigation
 //! estimate*, and truth output at 10 Hz. A flight is a pure function of its setup and seed.
+//! With a camera set up (issue 4), a 10 Hz frame rendered from the true camera pose is
+//! delivered as `SensorEvent::Frame` from mission time 0 on.
 
 use ianav::env::atmosphere::{self, AtmosphereOffsets};
 use ianav::env::magnetic::{MagneticGrid, MagneticModel};
 use ianav::ins::{Ins, InsConfig, InsInit, InsSolution};
 use ianav::math::wgs84::Geodetic;
 use ianav::math::{so3, wgs84};
-use ianav::sensors::{GnssFix, SensorEvent};
+use ianav::sensors::{Frame, GnssFix, SensorEvent};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -26,6 +28,9 @@ use crate::env::{
 use crate::rng;
 use crate::scenario::{Mission, ScenarioConfig};
 use crate::sensors::{SensorSuite, SensorTruth, SensorsConfig};
+use crate::terrain::Terrain;
+use crate::terrain::render::{RenderError, RenderOptions, Renderer};
+use ianav::vision::camera::{Camera, CameraConfig, MountingConfig, MountingPair};
 
 /// Errors setting up a flight.
 #[derive(Debug, thiserror::Error)]
@@ -63,6 +68,10 @@ pub enum FlightError {
     /// The control configuration is invalid.
     #[error("control: {0}")]
     Control(#[from] crate::control::ControlConfigError),
+    /// The camera could not be set up (a frame that cannot be rendered, e.g. because the
+    /// aircraft flew into the terrain, ends the flight as `Departed`).
+    #[error("camera: {0}")]
+    Camera(String),
     /// The aircraft left the physical envelope (non-finite state, below sea level, stalled
     /// far below the minimum airspeed or overspeeding): the models are no longer valid.
     #[error("flight departed at mission time {t_s:.2} s: {reason}")]
@@ -113,6 +122,43 @@ pub enum NavigationMode {
     Ins,
 }
 
+/// The down-looking camera and the terrain it sees (issue 4); off unless set.
+#[derive(Debug, Clone)]
+pub struct CameraSetup {
+    /// The terrain (shared: its tile cache serves every flight that flies over it).
+    pub terrain: std::sync::Arc<Terrain>,
+    /// Intrinsics.
+    pub camera: CameraConfig,
+    /// Mounting and its error model.
+    pub mounting: MountingConfig,
+    /// Frame period, s (0.1: the paper's 10 Hz).
+    pub period_s: f64,
+    /// Photometric options (noise-free by default).
+    pub options: RenderOptions,
+}
+
+impl CameraSetup {
+    /// The authors' camera, nadir-looking, at 10 Hz over `terrain`.
+    pub fn new(terrain: std::sync::Arc<Terrain>) -> Self {
+        Self {
+            terrain,
+            camera: CameraConfig::default(),
+            mounting: MountingConfig::default(),
+            period_s: 0.1,
+            options: RenderOptions::default(),
+        }
+    }
+}
+
+/// The camera of a flight in progress.
+struct FlightCamera {
+    terrain: std::sync::Arc<Terrain>,
+    renderer: Renderer,
+    mounting: MountingPair,
+    steps_per_frame: u64,
+    noise_seed: u64,
+}
+
 /// Everything that defines a flight but the seed.
 #[derive(Debug, Clone)]
 pub struct FlightSetup {
@@ -132,6 +178,8 @@ pub struct FlightSetup {
     pub navigation: NavigationMode,
     /// INS configuration (used when `navigation` is `Ins`).
     pub ins: InsConfig,
+    /// Camera and terrain (`None`: no frames, the default).
+    pub camera: Option<CameraSetup>,
 }
 
 impl FlightSetup {
@@ -158,6 +206,7 @@ impl FlightSetup {
             mission_override: None,
             navigation: NavigationMode::default(),
             ins: InsConfig::default(),
+            camera: None,
         })
     }
 }
@@ -316,6 +365,7 @@ pub struct Flight {
     /// Sensor events of the current sample instant, in the order the INS consumes them.
     pending_events: Vec<SensorEvent>,
 
+    camera: Option<FlightCamera>,
     mission: Mission,
     distance_m: f64,
     h_range_m: [f64; 2],
@@ -459,6 +509,25 @@ impl Flight {
         controller.set_trim(&command);
         let guidance = Guidance::new(mission.operations.clone());
         let sensors = SensorSuite::new(&setup.sensors, seed);
+        let camera = match &setup.camera {
+            None => None,
+            Some(c) => {
+                let model = Camera::from_config(&c.camera)
+                    .map_err(|e| FlightError::Camera(e.to_string()))?;
+                c.mounting
+                    .validate()
+                    .map_err(|e| FlightError::Camera(e.to_string()))?;
+                let renderer = Renderer::with_options(model, c.options)
+                    .map_err(|e| FlightError::Camera(e.to_string()))?;
+                Some(FlightCamera {
+                    terrain: std::sync::Arc::clone(&c.terrain),
+                    renderer,
+                    mounting: crate::sensors::camera::draw_mounting(&c.mounting, seed),
+                    steps_per_frame: steps_per("camera.period_s", c.period_s, step_s)?,
+                    noise_seed: rand::Rng::next_u64(&mut rng::stream(seed, "camera_noise")),
+                })
+            }
+        };
 
         Ok(Self {
             seed,
@@ -500,6 +569,7 @@ impl Flight {
             ins: None,
             ins_solution: None,
             pending_events: Vec::with_capacity(8),
+            camera,
             mission,
             distance_m: 0.0,
             h_range_m: [f64::INFINITY, f64::NEG_INFINITY],
@@ -675,7 +745,40 @@ impl Flight {
                 observer.nav_solution(&truth, solution);
             }
         }
+        if let Some(cam) = &self.camera
+            && k.is_multiple_of(cam.steps_per_frame)
+            && self.t_us() >= self.warmup_us
+        {
+            let frame = self.render_frame(cam, k)?;
+            self.sensor_events += 1;
+            observer.sensor_event(&SensorEvent::Frame(frame));
+        }
         Ok(())
+    }
+
+    /// The true and estimated camera mountings of this run (with a camera set up).
+    pub fn camera_mounting(&self) -> Option<&MountingPair> {
+        self.camera.as_ref().map(|c| &c.mounting)
+    }
+
+    /// The frame seen now from the true camera pose.
+    fn render_frame(&self, cam: &FlightCamera, k: u64) -> Result<Frame, FlightError> {
+        let cg = self.aircraft.cg_from_reference_b_m(self.x.mass_kg);
+        let zeta_ec = cam.mounting.truth.zeta_ec(&self.x.pos, &self.x.q_nb, &cg);
+        let mut renderer = cam.renderer.clone();
+        renderer.set_noise_seed(cam.noise_seed ^ k);
+        let img = renderer
+            .render(&cam.terrain, &zeta_ec)
+            .map_err(|e: RenderError| FlightError::Departed {
+                t_s: self.mission_time_s(),
+                reason: format!("camera: {e}"),
+            })?;
+        Ok(Frame {
+            t_us: self.t_us(),
+            width: img.width,
+            height: img.height,
+            pixels: img.pixels.into(),
+        })
     }
 
     fn record_operation(&mut self, t_s: f64, index: usize, observer: &mut impl FlightObserver) {

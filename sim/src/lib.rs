@@ -14,3 +14,4 @@ pub mod report;
 pub mod rng;
 pub mod scenario;
 pub mod sensors;
+pub mod terrain;

@@ -5,6 +5,7 @@
 //! - `bench`: one flight without output, timing the simulator (real-time factor, memory).
 //! - `mc`: a Monte Carlo batch (or one shard of it) in parallel, one metrics file per run.
 //! - `report`: the navigation-error tables and plots of one or several `mc` directories.
+//! - `render`: one camera image of a procedural terrain zone, from a given pose.
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -47,7 +48,8 @@ struct SetupArgs {
     /// Turbulence factor override (0 = calm; the scenarios use 0.5).
     #[arg(long)]
     turbulence: Option<f64>,
-    /// Directory with `aircraft.toml`, `sensors.toml`, `control.toml`, `ins.toml` and
+    /// Directory with `aircraft.toml`, `sensors.toml`, `control.toml`, `ins.toml`,
+    /// `camera.toml` (with --terrain) and
     /// `scenarios/scenario{1,2}.toml` replacing the built-in defaults (each file optional).
     #[arg(long)]
     config_dir: Option<PathBuf>,
@@ -55,6 +57,13 @@ struct SetupArgs {
     /// simulated sensors.
     #[arg(long, value_enum, default_value_t = Navigation::Ins)]
     navigation: Navigation,
+    /// Fly over this terrain zone with the down-looking camera rendering 10 Hz frames
+    /// (ds, fm, fr, mx, pr, ur); the flight starts at the zone's start point. Off by default.
+    #[arg(long)]
+    terrain: Option<String>,
+    /// Terrain seed (with --terrain).
+    #[arg(long, default_value_t = 0)]
+    terrain_seed: u64,
 }
 
 /// Navigation source of guidance and control (`--navigation`).
@@ -78,6 +87,13 @@ enum Command {
         /// Do not write the sensor sample log.
         #[arg(long)]
         no_sensor_log: bool,
+        /// Save camera frames (with --terrain) as PNG files in this directory; frames are
+        /// not written to the sensor log.
+        #[arg(long, requires = "terrain")]
+        frames: Option<PathBuf>,
+        /// Save every N-th frame only (with --frames).
+        #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
+        every: u64,
     },
     /// Time one flight of physics, environment, sensors and control (no output files).
     Bench {
@@ -86,6 +102,8 @@ enum Command {
     },
     /// Fly a Monte Carlo batch (or one shard of it) and write one metrics file per run.
     Mc(McArgs),
+    /// Render one down-looking camera image of a terrain zone (8-bit grey PNG).
+    Render(RenderArgs),
     /// Build the Monte Carlo report (`report.md`, plots) from `mc` directories.
     Report {
         /// Batch directories (holding `runs/`), or parents whose subdirectories are batch
@@ -119,6 +137,103 @@ struct McArgs {
     /// Output directory (created if missing): `runs/run_NNNN.csv` and the manifest.
     #[arg(long)]
     out: PathBuf,
+}
+
+/// Options of `render`.
+#[derive(Debug, clap::Args)]
+struct RenderArgs {
+    /// Terrain zone: ds, fm, fr, mx, pr, ur (or desert, farm, forest, mix, prairie, urban).
+    #[arg(long)]
+    terrain: String,
+    /// Terrain seed.
+    #[arg(long, default_value_t = 0)]
+    terrain_seed: u64,
+    /// Latitude of the aircraft, degrees (default: the zone's start point).
+    #[arg(long, allow_hyphen_values = true)]
+    lat: Option<f64>,
+    /// Longitude of the aircraft, degrees (default: the zone's start point).
+    #[arg(long, allow_hyphen_values = true)]
+    lon: Option<f64>,
+    /// Height of the aircraft above the WGS84 ellipsoid, m (default: 2,700 m above the
+    /// terrain below).
+    #[arg(long, allow_hyphen_values = true)]
+    h: Option<f64>,
+    /// Body yaw, degrees.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    yaw: f64,
+    /// Body pitch, degrees.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    pitch: f64,
+    /// Body bank, degrees.
+    #[arg(long, default_value_t = 0.0, allow_hyphen_values = true)]
+    bank: f64,
+    /// Output PNG.
+    #[arg(long)]
+    out: PathBuf,
+}
+
+fn render(args: &RenderArgs) -> Result<()> {
+    use ianav::math::{so3, wgs84::Geodetic};
+    use ianav::vision::camera::{Camera, MountingConfig};
+    use ianav_sim::terrain::{Terrain, Zone, render::Renderer};
+    let zone: Zone = args.terrain.parse()?;
+    let terrain = Terrain::new(zone, args.terrain_seed);
+    let start = zone.start();
+    let lat_deg = args.lat.unwrap_or(start.lat_deg);
+    let lon_deg = args.lon.unwrap_or(start.lon_deg);
+    for (name, v) in [
+        ("--lat", lat_deg),
+        ("--lon", lon_deg),
+        ("--yaw", args.yaw),
+        ("--pitch", args.pitch),
+        ("--bank", args.bank),
+    ] {
+        if !v.is_finite() {
+            bail!("{name} must be a finite number, got {v}");
+        }
+    }
+    if !(-90.0..=90.0).contains(&lat_deg) {
+        bail!("--lat must be within ±90°, got {lat_deg}");
+    }
+    let (lat_rad, lon_rad) = (lat_deg.to_radians(), lon_deg.to_radians());
+    let h_m = match args.h {
+        Some(h) => h,
+        None => terrain.height_m(lat_rad, lon_rad) + 2_700.0,
+    };
+    let pos = Geodetic {
+        lat_rad,
+        lon_rad,
+        h_m,
+    };
+    let q_nb = so3::from_euler_zyx(
+        args.yaw.to_radians(),
+        args.pitch.to_radians(),
+        args.bank.to_radians(),
+    );
+    let mounting = MountingConfig::default().nominal();
+    let zeta_ec = mounting.zeta_ec(&pos, &q_nb, &nalgebra::Vector3::zeros());
+    let renderer = Renderer::new(Camera::paper());
+    let started = Instant::now();
+    let (image, stats) = renderer.render_with_stats(&terrain, &zeta_ec)?;
+    let elapsed = started.elapsed();
+    image
+        .save_png(&args.out)
+        .with_context(|| format!("writing {}", args.out.display()))?;
+    let ground_m = terrain.height_m(lat_rad, lon_rad);
+    println!(
+        "{}: {}x{} px from {:.0} m ({:.0} m above the terrain) in {:.1} ms ({} sky px, {} marched rays, {} exact albedo samples); {}",
+        zone,
+        image.width,
+        image.height,
+        h_m,
+        h_m - ground_m,
+        elapsed.as_secs_f64() * 1e3,
+        stats.sky,
+        stats.marched,
+        stats.exact_albedo,
+        args.out.display()
+    );
+    Ok(())
 }
 
 fn read_optional(dir: Option<&PathBuf>, name: &str) -> Result<Option<(PathBuf, String)>> {
@@ -173,14 +288,87 @@ fn setup(args: &SetupArgs) -> Result<FlightSetup> {
         }
         setup.scenario.turbulence_factor = factor;
     }
+    if let Some(name) = &args.terrain {
+        let zone: ianav_sim::terrain::Zone = name.parse()?;
+        let start = zone.start();
+        setup.scenario.start.lat_deg = start.lat_deg;
+        setup.scenario.start.lon_deg = start.lon_deg;
+        let terrain = ianav_sim::terrain::Terrain::new(zone, args.terrain_seed);
+        setup.camera = Some(ianav_sim::flight::CameraSetup::new(std::sync::Arc::new(
+            terrain,
+        )));
+    }
     setup.scenario.validate()?;
     Ok(setup)
 }
 
-fn run(fly: &FlyArgs, out: &std::path::Path, no_sensor_log: bool) -> Result<()> {
+/// Observer that saves camera frames as PNG files and passes everything else on.
+struct FrameSaver<'a, O> {
+    inner: &'a mut O,
+    dir: Option<PathBuf>,
+    every: u64,
+    count: u64,
+    error: Option<anyhow::Error>,
+}
+
+impl<O: ianav_sim::flight::FlightObserver> ianav_sim::flight::FlightObserver for FrameSaver<'_, O> {
+    fn sensor_event(&mut self, event: &ianav::sensors::SensorEvent) {
+        let ianav::sensors::SensorEvent::Frame(frame) = event else {
+            self.inner.sensor_event(event);
+            return;
+        };
+        let k = self.count;
+        self.count += 1;
+        let Some(dir) = &self.dir else { return };
+        if !k.is_multiple_of(self.every) || self.error.is_some() {
+            return;
+        }
+        // Frame index (10 Hz from mission time 0) and sensor-clock time (µs since the start
+        // of the warm-up, as in `sensors.bin` and `truth.csv`).
+        let path = dir.join(format!("frame_{k:06}_t{}us.png", frame.t_us));
+        if let Err(e) = image::save_buffer(
+            &path,
+            &frame.pixels,
+            frame.width,
+            frame.height,
+            image::ExtendedColorType::L8,
+        ) {
+            self.error = Some(anyhow::Error::new(e).context(format!("writing {}", path.display())));
+        }
+    }
+    fn truth_sample(&mut self, sample: &ianav_sim::flight::TruthSample) {
+        self.inner.truth_sample(sample);
+    }
+    fn estimate_sample(
+        &mut self,
+        truth: &ianav_sim::flight::TruthSample,
+        estimate: &ianav_sim::control::NavEstimate,
+    ) {
+        self.inner.estimate_sample(truth, estimate);
+    }
+    fn operation_started(
+        &mut self,
+        t_s: f64,
+        index: usize,
+        operation: &ianav_sim::control::Operation,
+    ) {
+        self.inner.operation_started(t_s, index, operation);
+    }
+}
+
+fn run(
+    fly: &FlyArgs,
+    out: &std::path::Path,
+    no_sensor_log: bool,
+    frames: Option<&PathBuf>,
+    every: u64,
+) -> Result<()> {
     let setup = setup(&fly.setup)?;
     let mut flight = Flight::new(&setup, fly.seed)?;
     let mut writer = RunWriter::new(out, !no_sensor_log)?;
+    if let Some(dir) = frames {
+        std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
+    }
     let end_s = flight.end_time_s();
     let bar = ProgressBar::new(end_s.ceil() as u64);
     bar.set_style(
@@ -191,8 +379,22 @@ fn run(fly: &FlyArgs, out: &std::path::Path, no_sensor_log: bool) -> Result<()> 
     );
     bar.set_message(format!("scenario {} seed {}", fly.setup.scenario, fly.seed));
     let started = Instant::now();
-    let summary = flight.run(&mut writer, |t_s| bar.set_position(t_s.max(0.0) as u64))?;
+    let mut saver = FrameSaver {
+        inner: &mut writer,
+        dir: frames.cloned(),
+        every,
+        count: 0,
+        error: None,
+    };
+    let summary = flight.run(&mut saver, |t_s| bar.set_position(t_s.max(0.0) as u64))?;
+    if let Some(e) = saver.error.take() {
+        return Err(e);
+    }
+    let n_frames = saver.count;
     bar.finish();
+    if n_frames > 0 {
+        println!("{n_frames} camera frames rendered");
+    }
     let report = writer.finish(&summary)?;
     println!(
         "{}: flew {:.0} s, {:.0} m in {:.1} s wall; report: {}",
@@ -326,9 +528,12 @@ fn main() -> Result<()> {
             fly,
             out,
             no_sensor_log,
-        } => run(fly, out, *no_sensor_log),
+            frames,
+            every,
+        } => run(fly, out, *no_sensor_log, frames.as_ref(), *every),
         Command::Bench { fly } => bench(fly),
         Command::Mc(args) => mc(args),
+        Command::Render(args) => render(args),
         Command::Report { dirs, out } => report(dirs, out.as_ref()),
     }
 }

@@ -11,6 +11,7 @@
 
 pub mod air_data;
 pub mod allan;
+pub mod camera;
 pub mod config;
 pub mod gnss;
 pub mod inertial;

@@ -1,0 +1,1229 @@
+//! Renderer of the down-looking camera's images over the procedural terrain (issue 4,
+//! "Renderer"; camera of author_impl §2.6).
+//!
+//! For every pixel the ray through its centre is intersected with the terrain height field
+//! and the albedo there, band-limited to the pixel's ground footprint, is the grey level
+//! (Lambertian surface under constant illumination: a terrain point has the same grey level in
+//! every image). 8-bit output, rows in parallel (rayon).
+//!
+//! Geometry, per frame:
+//! - Local NED frame at the camera, origin at the optical centre. The map from a local point
+//!   `q` to (texture x, texture y, ellipsoidal height) is fitted by a quadratic (central
+//!   differences of the exact ECEF → geodetic conversion, 1 km steps). Its error grows as
+//!   `|q|³/R²`: < 1 mm within 3 km, < 1 m at 30 km where a pixel spans ~30 m. The Earth's
+//!   curvature over the footprint is therefore exact to well below a pixel.
+//! - Along a ray `q(t) = t·u` (`t` the depth along the optical axis) the three outputs are
+//!   quadratics in `t`, and `f(t) = h_ray(t) − h_terrain(x(t), y(t))` is what is solved.
+//! - The search interval is where the ray crosses the zone's height slab (every height lies in
+//!   it by construction). If the terrain's slope bound `L` (per tile, from the lattice) is
+//!   below the ray's descent rate over its horizontal rate, `f` is strictly decreasing: one
+//!   root, found by one Newton step (exact gradient of the bilinear surface) from a depth
+//!   predicted by the two pixels above (typically one height look-up per pixel), with a
+//!   bracketed Newton/bisection fallback. Otherwise (grazing rays, steep desert flanks) a
+//!   Lipschitz march (steps `f/D`, `D` the largest rate at which `f` can fall) finds the first
+//!   crossing without skipping any, then refines it. Every loop has a fixed cap, so the
+//!   renderer always terminates; a ray that meets nothing within 15 km is sky (the frame's
+//!   height tiles then always cover every ray: at most 31 × 31 tiles of 1,024 m).
+//! - Band-limiting: the footprint of a pixel on the level ground, `t|u|/(f cos i)` with `i`
+//!   the incidence angle, selects the mip level (trilinear interpolation between the two
+//!   nearest levels, bilinear within each), so moving frames do not shimmer. A coarse pass
+//!   (every 16 px) finds the levels and ground in view so that the albedo tiles are fetched
+//!   before the main pass; a pixel that would still fall outside them is evaluated exactly.
+
+use ianav::math::wgs84;
+use ianav::vision::camera::Camera;
+use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
+use rayon::prelude::*;
+use std::sync::Arc;
+
+use super::Terrain;
+use super::tiles::{
+    ALBEDO_STRIDE, ALBEDO_TILE, AlbedoTile, HEIGHT_SPACING_M, HEIGHT_STRIDE, HEIGHT_TILE,
+    HeightTile, MAX_LEVEL, TileKey,
+};
+
+/// Rays that meet no terrain within this range are sky, m.
+pub const MAX_RANGE_M: f64 = 15_000.0;
+/// Highest camera accepted, m above the ellipsoid.
+pub const MAX_CAMERA_H_M: f64 = 100_000.0;
+/// Closest the camera may be to the terrain, m.
+pub const MIN_CLEARANCE_M: f64 = 0.5;
+/// Height-field tiles fetched per frame at most (the rest is evaluated directly, slowly).
+const MAX_FRAME_HEIGHT_TILES: usize = 1_024;
+/// Albedo tiles fetched per level and frame at most.
+const MAX_FRAME_ALBEDO_TILES: usize = 400;
+/// Convergence of the intersection: height mismatch, m.
+const TOL_H_M: f64 = 2e-3;
+/// Caps of the root-finding loops.
+const MAX_SECANT_ITER: usize = 60;
+const MAX_MARCH_STEPS: usize = 20_000;
+
+/// `⌊x⌋` as an integer and the fraction `x − ⌊x⌋`, without the libm call `f64::floor`
+/// becomes on baseline x86-64 (valid for |x| < 2⁶³, which texture coordinates are).
+#[inline(always)]
+fn split_floor(x: f64) -> (i64, f64) {
+    let t = x as i64;
+    let t = if (t as f64) > x { t - 1 } else { t };
+    (t, x - t as f64)
+}
+
+/// Height and gradient outside the frame's tiles: direct evaluation (kept out of line so the
+/// hot loop stays small).
+#[cold]
+#[inline(never)]
+fn slow_height_grad(terrain: &Terrain, x: f64, y: f64) -> (f64, f64, f64) {
+    terrain.height_grad_xy_m(x, y)
+}
+
+/// Albedo (grey levels) at mip level `level` outside the frame's tiles: direct evaluation.
+#[cold]
+#[inline(never)]
+fn slow_albedo(terrain: &Terrain, x: f64, y: f64, level: u32) -> f32 {
+    (terrain.albedo_xy(x, y, f64::from(1_u32 << level)) * 255.0) as f32
+}
+
+/// Errors of the renderer: bad requests get an error, never a panic or an endless loop.
+#[derive(Debug, thiserror::Error)]
+pub enum RenderError {
+    /// The pose has a NaN or infinite component.
+    #[error("camera pose is not finite: {0}")]
+    NonFinitePose(String),
+    /// The camera is below (or within half a metre of) the terrain.
+    #[error(
+        "camera below the terrain: camera at {camera_h_m:.1} m, terrain {terrain_h_m:.1} m at lat {lat_deg:.6}°, lon {lon_deg:.6}°"
+    )]
+    CameraBelowTerrain {
+        /// Camera height above the ellipsoid, m.
+        camera_h_m: f64,
+        /// Terrain height there, m.
+        terrain_h_m: f64,
+        /// Latitude, degrees.
+        lat_deg: f64,
+        /// Longitude, degrees.
+        lon_deg: f64,
+    },
+    /// The camera is too high (or deep inside the Earth) for the terrain model.
+    #[error("camera height {0:.0} m is outside [-1000, {MAX_CAMERA_H_M}] m")]
+    OutOfRange(f64),
+    /// The render options are invalid.
+    #[error("render options: {0}")]
+    Options(String),
+}
+
+/// Photometric options (all off by default: noise-free, unit exposure).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct RenderOptions {
+    /// Exposure gain applied to the albedo (1 = albedo 1 is grey 255).
+    pub exposure: f64,
+    /// Standard deviation of additive sensor noise, grey levels (0 = none).
+    pub noise_sigma_grey: f64,
+    /// Seed of the sensor noise of this frame.
+    pub noise_seed: u64,
+    /// Grey level of rays that meet no terrain.
+    pub sky_grey: u8,
+}
+
+impl Default for RenderOptions {
+    fn default() -> Self {
+        Self {
+            exposure: 1.0,
+            noise_sigma_grey: 0.0,
+            noise_seed: 0,
+            sky_grey: 210,
+        }
+    }
+}
+
+/// An 8-bit grey image, row after row.
+#[derive(Debug, Clone, PartialEq)]
+pub struct GreyImage {
+    /// Width, px.
+    pub width: u32,
+    /// Height, px.
+    pub height: u32,
+    /// `width × height` grey levels.
+    pub pixels: Vec<u8>,
+}
+
+impl GreyImage {
+    /// Grey level at column `u`, row `v`.
+    pub fn get(&self, u: u32, v: u32) -> u8 {
+        self.pixels[v as usize * self.width as usize + u as usize]
+    }
+
+    /// Write as an 8-bit grey PNG.
+    pub fn save_png(&self, path: &std::path::Path) -> Result<(), image::ImageError> {
+        image::save_buffer(
+            path,
+            &self.pixels,
+            self.width,
+            self.height,
+            image::ExtendedColorType::L8,
+        )
+    }
+}
+
+/// Statistics of one render (for benchmarks and tests).
+#[derive(Debug, Clone, Copy, Default, PartialEq)]
+pub struct RenderStats {
+    /// Pixels that met the terrain.
+    pub hits: u64,
+    /// Pixels of sky.
+    pub sky: u64,
+    /// Height look-ups.
+    pub height_lookups: u64,
+    /// Rays that needed the Lipschitz march.
+    pub marched: u64,
+    /// Albedo samples evaluated exactly because they fell outside the frame's tiles.
+    pub exact_albedo: u64,
+    /// Wall time of the set-up and height tiles, s.
+    pub setup_s: f64,
+    /// Wall time of the coarse pass (mip levels and ground in view), s.
+    pub coarse_s: f64,
+    /// Wall time of fetching (and generating) the albedo tiles, s.
+    pub albedo_tiles_s: f64,
+    /// Wall time of the main pass (intersection and albedo of every pixel), s.
+    pub main_s: f64,
+}
+
+/// The renderer: a camera and photometric options.
+#[derive(Debug, Clone)]
+pub struct Renderer {
+    camera: Camera,
+    options: RenderOptions,
+}
+
+/// Quadratic map from the local NED offset `q` (m, from the camera) to
+/// `(x − x_c, y − y_c, h)`: value, gradient and Hessian of each output.
+#[derive(Debug, Clone, Copy)]
+struct LocalMap {
+    g0: Vector3<f64>,
+    grad: [Vector3<f64>; 3],
+    hess: [Matrix3<f64>; 3],
+}
+
+impl LocalMap {
+    fn fit(exact: impl Fn(&Vector3<f64>) -> Vector3<f64>) -> Self {
+        const S: f64 = 1_000.0;
+        let f0 = exact(&Vector3::zeros());
+        let e = [Vector3::x(), Vector3::y(), Vector3::z()];
+        let mut grad = [Vector3::zeros(); 3];
+        let mut hess = [Matrix3::zeros(); 3];
+        let mut fp = [Vector3::zeros(); 3];
+        let mut fm = [Vector3::zeros(); 3];
+        for i in 0..3 {
+            fp[i] = exact(&(e[i] * S));
+            fm[i] = exact(&(-e[i] * S));
+        }
+        for k in 0..3 {
+            for i in 0..3 {
+                grad[k][i] = (fp[i][k] - fm[i][k]) / (2.0 * S);
+                hess[k][(i, i)] = (fp[i][k] - 2.0 * f0[k] + fm[i][k]) / (S * S);
+            }
+        }
+        for i in 0..3 {
+            for j in (i + 1)..3 {
+                let pp = exact(&((e[i] + e[j]) * S));
+                let pm = exact(&((e[i] - e[j]) * S));
+                let mp = exact(&((-e[i] + e[j]) * S));
+                let mm = exact(&((-e[i] - e[j]) * S));
+                for k in 0..3 {
+                    let v = (pp[k] - pm[k] - mp[k] + mm[k]) / (4.0 * S * S);
+                    hess[k][(i, j)] = v;
+                    hess[k][(j, i)] = v;
+                }
+            }
+        }
+        Self { g0: f0, grad, hess }
+    }
+}
+
+/// The height field of one frame: its tiles in a dense table.
+struct HeightTable<'a> {
+    terrain: &'a Terrain,
+    tiles: Vec<Arc<HeightTile>>,
+    ntx: i64,
+    nty: i64,
+    /// Lattice coordinates of the camera relative to the table origin.
+    ox: f64,
+    oy: f64,
+    /// Camera texture coordinates (for the slow path).
+    xc: f64,
+    yc: f64,
+    /// Whether the table holds every tile the frame's rays can reach within the slab (then
+    /// its slope bound holds along every ray).
+    covers_frame: bool,
+}
+
+impl HeightTable<'_> {
+    /// Height and its gradient (per texture metre) at texture offsets `(x, y)`.
+    #[inline(always)]
+    fn height_grad(&self, x: f64, y: f64) -> (f64, f64, f64) {
+        let gx = x * (1.0 / HEIGHT_SPACING_M) + self.ox;
+        let gy = y * (1.0 / HEIGHT_SPACING_M) + self.oy;
+        let (ix, fx) = split_floor(gx);
+        let (iy, fy) = split_floor(gy);
+        let (tx, ty) = (
+            ix >> HEIGHT_TILE.trailing_zeros(),
+            iy >> HEIGHT_TILE.trailing_zeros(),
+        );
+        if tx < 0 || ty < 0 || tx >= self.ntx || ty >= self.nty {
+            return slow_height_grad(self.terrain, self.xc + x, self.yc + y);
+        }
+        let tile = &self.tiles[(ty * self.ntx + tx) as usize];
+        let lx = (ix - tx * HEIGHT_TILE as i64) as usize;
+        let ly = (iy - ty * HEIGHT_TILE as i64) as usize;
+        let k = ly * HEIGHT_STRIDE + lx;
+        let h = &tile.h_m;
+        super::bilinear_grad(
+            h[k],
+            h[k + 1],
+            h[k + HEIGHT_STRIDE],
+            h[k + HEIGHT_STRIDE + 1],
+            fx,
+            fy,
+        )
+    }
+
+    #[allow(dead_code)]
+    #[inline]
+    fn height(&self, x: f64, y: f64) -> f64 {
+        let gx = x * (1.0 / HEIGHT_SPACING_M) + self.ox;
+        let gy = y * (1.0 / HEIGHT_SPACING_M) + self.oy;
+        let (ix, fx) = split_floor(gx);
+        let (iy, fy) = split_floor(gy);
+        let (tx, ty) = (
+            ix >> HEIGHT_TILE.trailing_zeros(),
+            iy >> HEIGHT_TILE.trailing_zeros(),
+        );
+        if tx < 0 || ty < 0 || tx >= self.ntx || ty >= self.nty {
+            return self.terrain.height_xy_m(self.xc + x, self.yc + y);
+        }
+        let tile = &self.tiles[(ty * self.ntx + tx) as usize];
+        let lx = (ix - tx * HEIGHT_TILE as i64) as usize;
+        let ly = (iy - ty * HEIGHT_TILE as i64) as usize;
+        let k = ly * HEIGHT_STRIDE + lx;
+        let h = &tile.h_m;
+        super::bilinear(
+            h[k],
+            h[k + 1],
+            h[k + HEIGHT_STRIDE],
+            h[k + HEIGHT_STRIDE + 1],
+            fx,
+            fy,
+        )
+    }
+}
+
+/// The albedo of one mip level over the frame's ground: its tiles copied side by side into
+/// one raster (an atlas), so that a sample is one index computation and four loads (the copy,
+/// a few MB per frame, costs far less than the per-sample tile look-ups it saves).
+struct AlbedoLevel {
+    data: Vec<u8>,
+    /// Samples per atlas row and number of rows (tiles × 256 + 1).
+    stride: usize,
+    width: i64,
+    height: i64,
+    /// Texel coordinates of the camera relative to the atlas origin, and texels per metre.
+    ox: f64,
+    oy: f64,
+    scale: f64,
+}
+
+impl AlbedoLevel {
+    fn new(tiles: &[Arc<AlbedoTile>], ntx: i64, nty: i64, ox: f64, oy: f64, scale: f64) -> Self {
+        let n = ALBEDO_TILE;
+        let stride = ntx as usize * n + 1;
+        let rows = nty as usize * n + 1;
+        let mut data = vec![0_u8; stride * rows];
+        for ty in 0..nty as usize {
+            for tx in 0..ntx as usize {
+                let tile = &tiles[ty * ntx as usize + tx];
+                // Each tile holds 257 × 257 samples; neighbours share their edge samples.
+                for r in 0..=n {
+                    let dst = (ty * n + r) * stride + tx * n;
+                    data[dst..dst + n + 1]
+                        .copy_from_slice(&tile.a[r * ALBEDO_STRIDE..r * ALBEDO_STRIDE + n + 1]);
+                }
+            }
+        }
+        Self {
+            data,
+            stride,
+            width: stride as i64,
+            height: rows as i64,
+            ox,
+            oy,
+            scale,
+        }
+    }
+
+    /// Bilinear sample at texture offsets `(x, y)`; `None` outside the frame's tiles.
+    #[inline(always)]
+    fn sample(&self, x: f64, y: f64) -> Option<f32> {
+        let (ix, fx) = split_floor(x * self.scale + self.ox);
+        let (iy, fy) = split_floor(y * self.scale + self.oy);
+        if ix < 0 || iy < 0 || ix >= self.width - 1 || iy >= self.height - 1 {
+            return None;
+        }
+        let k = iy as usize * self.stride + ix as usize;
+        let a = &self.data[k..k + self.stride + 2];
+        let (wx, wy) = (fx as f32, fy as f32);
+        let (a00, a10) = (f32::from(a[0]), f32::from(a[1]));
+        let (a01, a11) = (f32::from(a[self.stride]), f32::from(a[self.stride + 1]));
+        let top = a00 + wx * (a10 - a00);
+        let bot = a01 + wx * (a11 - a01);
+        Some(top + wy * (bot - top))
+    }
+}
+
+/// Ray quadratics: `x(t) = cx1 t + cx2 t²`, `y` likewise, `h(t) = h0 + ch1 t + ch2 t²`.
+#[derive(Debug, Clone, Copy)]
+struct Ray {
+    cx1: f64,
+    cx2: f64,
+    cy1: f64,
+    cy2: f64,
+    h0: f64,
+    ch1: f64,
+    ch2: f64,
+    /// |u|.
+    norm: f64,
+}
+
+impl Ray {
+    #[inline]
+    fn xyh(&self, t: f64) -> (f64, f64, f64) {
+        (
+            t * (self.cx1 + self.cx2 * t),
+            t * (self.cy1 + self.cy2 * t),
+            self.h0 + t * (self.ch1 + self.ch2 * t),
+        )
+    }
+
+    /// Smallest `t ≥ 0` where the ray's height equals `level_m`, if any.
+    fn cross(&self, level_m: f64) -> Option<f64> {
+        let c = self.h0 - level_m;
+        if c <= 0.0 {
+            return Some(0.0);
+        }
+        let (a, b) = (self.ch2, self.ch1);
+        if a.abs() < 1e-15 {
+            return (b < 0.0).then(|| -c / b);
+        }
+        let disc = b * b - 4.0 * a * c;
+        if disc < 0.0 {
+            return None;
+        }
+        // Numerically stable roots of a t² + b t + c.
+        let sq = disc.sqrt();
+        let qq = -0.5 * (b + b.signum() * sq);
+        let (r1, r2) = (qq / a, c / qq);
+        let (lo, hi) = (r1.min(r2), r1.max(r2));
+        if lo > 0.0 {
+            Some(lo)
+        } else if hi > 0.0 {
+            Some(hi)
+        } else {
+            None
+        }
+    }
+}
+
+/// The rays of one image row: every coefficient of [`Ray`] as a polynomial in the column `u`
+/// (the direction is affine in `u`), so a pixel's ray costs a few multiply-adds.
+#[derive(Debug, Clone, Copy)]
+struct RowRays {
+    /// Linear coefficients `p + q u` of x, y, h.
+    lin: [(f64, f64); 3],
+    /// Quadratic coefficients `a + u (b + u c)` of x, y, h.
+    quad: [(f64, f64, f64); 3],
+    /// `|dir|²` as `a + u (b + u c)`.
+    n2: (f64, f64, f64),
+    h0: f64,
+}
+
+impl RowRays {
+    fn new(map: &LocalMap, r_nc: &Matrix3<f64>, f_px: f64, cu_px: f64, y_norm: f64) -> Self {
+        // dir(u) = d0 + u du with d0 = R (−c_u/f, y, 1) and du = R (1/f, 0, 0).
+        let d0 = r_nc * Vector3::new(-cu_px / f_px, y_norm, 1.0);
+        let du = r_nc * Vector3::new(1.0 / f_px, 0.0, 0.0);
+        let mut lin = [(0.0, 0.0); 3];
+        let mut quad = [(0.0, 0.0, 0.0); 3];
+        for k in 0..3 {
+            lin[k] = (map.grad[k].dot(&d0), map.grad[k].dot(&du));
+            let hd0 = map.hess[k] * d0;
+            let hdu = map.hess[k] * du;
+            quad[k] = (0.5 * d0.dot(&hd0), d0.dot(&hdu), 0.5 * du.dot(&hdu));
+        }
+        Self {
+            lin,
+            quad,
+            n2: (d0.dot(&d0), 2.0 * d0.dot(&du), du.dot(&du)),
+            h0: map.g0[2],
+        }
+    }
+
+    #[inline]
+    fn at(&self, u: f64) -> Ray {
+        let l = |k: usize| self.lin[k].0 + u * self.lin[k].1;
+        let q = |k: usize| self.quad[k].0 + u * (self.quad[k].1 + u * self.quad[k].2);
+        Ray {
+            cx1: l(0),
+            cx2: q(0),
+            cy1: l(1),
+            cy2: q(1),
+            h0: self.h0,
+            ch1: l(2),
+            ch2: q(2),
+            norm: (self.n2.0 + u * (self.n2.1 + u * self.n2.2)).sqrt(),
+        }
+    }
+}
+
+impl Renderer {
+    /// Renderer for `camera` with the default (noise-free) options.
+    pub fn new(camera: Camera) -> Self {
+        Self {
+            camera,
+            options: RenderOptions::default(),
+        }
+    }
+
+    /// Renderer with photometric options.
+    pub fn with_options(camera: Camera, options: RenderOptions) -> Result<Self, RenderError> {
+        if !(options.exposure.is_finite() && options.exposure > 0.0 && options.exposure < 100.0) {
+            return Err(RenderError::Options(format!(
+                "exposure {} must be in (0, 100)",
+                options.exposure
+            )));
+        }
+        if !(options.noise_sigma_grey.is_finite() && options.noise_sigma_grey >= 0.0) {
+            return Err(RenderError::Options(format!(
+                "noise_sigma_grey {} must be ≥ 0",
+                options.noise_sigma_grey
+            )));
+        }
+        Ok(Self { camera, options })
+    }
+
+    /// The camera.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// The options.
+    pub fn options(&self) -> &RenderOptions {
+        &self.options
+    }
+
+    /// Replace the noise seed (one per frame).
+    pub fn set_noise_seed(&mut self, seed: u64) {
+        self.options.noise_seed = seed;
+    }
+
+    /// Render the view of `terrain` from the camera pose `zeta_ec` (camera → ECEF).
+    pub fn render(
+        &self,
+        terrain: &Terrain,
+        zeta_ec: &Isometry3<f64>,
+    ) -> Result<GreyImage, RenderError> {
+        self.render_with_stats(terrain, zeta_ec).map(|(img, _)| img)
+    }
+
+    /// Render and report statistics.
+    pub fn render_with_stats(
+        &self,
+        terrain: &Terrain,
+        zeta_ec: &Isometry3<f64>,
+    ) -> Result<(GreyImage, RenderStats), RenderError> {
+        let clock = std::time::Instant::now();
+        let t_ec_e = zeta_ec.translation.vector;
+        let q_ec = zeta_ec.rotation;
+        if !(t_ec_e.iter().all(|v| v.is_finite()) && q_ec.coords.iter().all(|v| v.is_finite())) {
+            return Err(RenderError::NonFinitePose(format!("{zeta_ec:?}")));
+        }
+        // Re-normalise: a quaternion a few ulps off unit norm is still a valid attitude.
+        let q_ec = UnitQuaternion::new_normalize(q_ec.into_inner());
+        let cam = wgs84::ecef_to_geodetic(&t_ec_e);
+        if !(cam.h_m.is_finite() && (-1_000.0..=MAX_CAMERA_H_M).contains(&cam.h_m)) {
+            return Err(RenderError::OutOfRange(cam.h_m));
+        }
+        let ground_m = terrain.height_m(cam.lat_rad, cam.lon_rad);
+        if cam.h_m < ground_m + MIN_CLEARANCE_M {
+            return Err(RenderError::CameraBelowTerrain {
+                camera_h_m: cam.h_m,
+                terrain_h_m: ground_m,
+                lat_deg: cam.lat_rad.to_degrees(),
+                lon_deg: cam.lon_rad.to_degrees(),
+            });
+        }
+        let q_en = wgs84::q_en(cam.lat_rad, cam.lon_rad);
+        let r_nc = (q_en.inverse() * q_ec).to_rotation_matrix().into_inner();
+        let (xc, yc) = terrain.texture_xy(cam.lat_rad, cam.lon_rad);
+        let map = LocalMap::fit(|q| {
+            let p = wgs84::ecef_to_geodetic(&(t_ec_e + q_en * q));
+            let (x, y) = terrain.texture_xy(p.lat_rad, p.lon_rad);
+            Vector3::new(x - xc, y - yc, p.h_m)
+        });
+        let (h_lo, h_hi) = terrain.height_bounds_m();
+        let cam_model = self.camera;
+        let (w, h) = (cam_model.width_px(), cam_model.height_px());
+        let f_px = cam_model.f_px();
+        let c_px = cam_model.principal_point_px();
+        let row_rays = |v: f64| RowRays::new(&map, &r_nc, f_px, c_px.x, (v - c_px.y) / f_px);
+        let make_ray = |u: f64, v: f64| row_rays(v).at(u);
+
+        // Height tiles over the footprint of the slab (a coarse grid of rays).
+        let mut bbox = [
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ];
+        let step = 32;
+        let mut us: Vec<f64> = (0..w).step_by(step).map(f64::from).collect();
+        us.push(f64::from(w - 1));
+        let mut vs: Vec<f64> = (0..h).step_by(step).map(f64::from).collect();
+        vs.push(f64::from(h - 1));
+        for &v in &vs {
+            for &u in &us {
+                let ray = make_ray(u, v);
+                let t_far = MAX_RANGE_M / ray.norm;
+                let t0 = ray.cross(h_hi).unwrap_or(t_far).min(t_far);
+                let t1 = ray.cross(h_lo).unwrap_or(t_far).min(t_far);
+                for t in [t0, t1] {
+                    let (x, y, _) = ray.xyh(t);
+                    bbox = [
+                        bbox[0].min(x),
+                        bbox[1].min(y),
+                        bbox[2].max(x),
+                        bbox[3].max(y),
+                    ];
+                }
+            }
+        }
+        let tile_m = HEIGHT_SPACING_M * HEIGHT_TILE as f64;
+        let margin = 2.0 * HEIGHT_SPACING_M;
+        let tx0 = ((xc + bbox[0] - margin) / tile_m).floor() as i64;
+        let ty0 = ((yc + bbox[1] - margin) / tile_m).floor() as i64;
+        let mut ntx = ((xc + bbox[2] + margin) / tile_m).floor() as i64 - tx0 + 1;
+        let mut nty = ((yc + bbox[3] + margin) / tile_m).floor() as i64 - ty0 + 1;
+        let covers_frame = (ntx * nty) as usize <= MAX_FRAME_HEIGHT_TILES;
+        if !covers_frame {
+            // Huge footprints (views near the horizon): keep the tiles nearest the camera,
+            // evaluate the far ones directly.
+            let side = (MAX_FRAME_HEIGHT_TILES as f64).sqrt() as i64;
+            ntx = ntx.min(side);
+            nty = nty.min(side);
+        }
+        let tx0 = tx0
+            .max((xc / tile_m).floor() as i64 - ntx / 2)
+            .min(tx0 + ntx);
+        let ty0 = ty0
+            .max((yc / tile_m).floor() as i64 - nty / 2)
+            .min(ty0 + nty);
+        let keys: Vec<TileKey> = (0..nty)
+            .flat_map(|j| {
+                (0..ntx).map(move |i| TileKey {
+                    level: 0,
+                    tx: tx0 + i,
+                    ty: ty0 + j,
+                })
+            })
+            .collect();
+        let tiles = terrain.height_tiles(&keys);
+        let max_slope = tiles.iter().fold(0.0_f64, |m, t| m.max(t.max_slope));
+        let table = HeightTable {
+            terrain,
+            tiles,
+            ntx,
+            nty,
+            ox: xc / HEIGHT_SPACING_M - (tx0 * HEIGHT_TILE as i64) as f64,
+            oy: yc / HEIGHT_SPACING_M - (ty0 * HEIGHT_TILE as i64) as f64,
+            xc,
+            yc,
+            covers_frame,
+        };
+
+        // Beyond the table the slope is not bounded by its tiles: use a generous bound.
+        let slope_bound = max_slope.max(1e-3) * 1.001 + 1e-6;
+        let far_slope_bound = slope_bound.max(20.0);
+
+        // Every ray monotone? The off-nadir angle peaks on the image border (rays within a
+        // cone about the vertical form a convex set), so checking the border rays with a
+        // margin settles it for the whole frame.
+        let all_monotone = covers_frame && {
+            let mut ok = true;
+            let border = (0..w)
+                .step_by(4)
+                .flat_map(|u| [(f64::from(u), 0.0), (f64::from(u), f64::from(h - 1))])
+                .chain(
+                    (0..h)
+                        .step_by(4)
+                        .flat_map(|v| [(0.0, f64::from(v)), (f64::from(w - 1), f64::from(v))]),
+                );
+            for (u, v) in border {
+                let ray = make_ray(u, v);
+                let t_far = MAX_RANGE_M / ray.norm;
+                match ray.cross(h_lo) {
+                    Some(t_bot) if t_bot < t_far && monotone(&ray, t_bot, slope_bound, 0.05) => {}
+                    _ => {
+                        ok = false;
+                        break;
+                    }
+                }
+            }
+            ok
+        };
+
+        // Coarse pass: intersections every COARSE px give the mip levels in use and the
+        // ground each of them covers, so the albedo tiles are fetched before the main pass.
+        let t_setup = clock.elapsed().as_secs_f64();
+        let n_px = (w as usize) * (h as usize);
+        let rows_per_chunk = 8;
+        let camera_ground_t = {
+            // Depth of the ground straight below along the optical axis, for the first
+            // prediction of each chunk.
+            let ray = make_ray(c_px.x, c_px.y);
+            ray.cross(ground_m)
+        };
+        let scene = Scene {
+            table: &table,
+            h_lo,
+            h_hi,
+            slope_bound,
+            far_slope_bound,
+            all_monotone,
+            camera_ground_t,
+        };
+        let lod_of = |ray: &Ray, t: f64| -> (f64, f64) {
+            // Footprint on level ground, m: t|u|/f / cos(incidence).
+            let descent = -(ray.ch1 + 2.0 * ray.ch2 * t);
+            let cos_inc = (descent / ray.norm).max(0.05);
+            let foot_m = t * ray.norm / (f_px * cos_inc);
+            (
+                fast_log2(foot_m.max(1e-3)).clamp(0.0, f64::from(MAX_LEVEL)),
+                foot_m,
+            )
+        };
+        const COARSE: u32 = 16;
+        let coarse: Vec<(RenderStats, [[f64; 4]; (MAX_LEVEL + 1) as usize])> = (0..h)
+            .step_by(COARSE as usize)
+            .chain(std::iter::once(h - 1))
+            .collect::<Vec<_>>()
+            .into_par_iter()
+            .map(|v| {
+                let mut st = RenderStats::default();
+                let mut bb = [[
+                    f64::INFINITY,
+                    f64::INFINITY,
+                    f64::NEG_INFINITY,
+                    f64::NEG_INFINITY,
+                ]; (MAX_LEVEL + 1) as usize];
+                let rays = row_rays(f64::from(v));
+                for u in (0..w)
+                    .step_by(COARSE as usize)
+                    .chain(std::iter::once(w - 1))
+                {
+                    let ray = rays.at(f64::from(u));
+                    let Some((t, x, y)) = intersect(&ray, &scene, None, &mut st) else {
+                        continue;
+                    };
+                    let (lod, foot_m) = lod_of(&ray, t);
+                    // Pixels up to a coarse cell away: margin of 1.5 cells of footprint; their
+                    // level of detail differs by a few hundredths at most (it varies slowly),
+                    // so the levels needed are those of lod ± 0.05.
+                    let m = 1.5 * f64::from(COARSE) * foot_m;
+                    let lo = (lod - 0.05).max(0.0) as i64;
+                    let hi = (lod + 0.05) as i64 + 1;
+                    for l in lo.max(0)..=hi.min(i64::from(MAX_LEVEL)) {
+                        let b = &mut bb[l as usize];
+                        *b = [
+                            b[0].min(x - m),
+                            b[1].min(y - m),
+                            b[2].max(x + m),
+                            b[3].max(y + m),
+                        ];
+                    }
+                }
+                (st, bb)
+            })
+            .collect();
+        let mut lvl_bbox = [[
+            f64::INFINITY,
+            f64::INFINITY,
+            f64::NEG_INFINITY,
+            f64::NEG_INFINITY,
+        ]; (MAX_LEVEL + 1) as usize];
+        for (_, b) in &coarse {
+            for l in 0..=MAX_LEVEL as usize {
+                let a = &mut lvl_bbox[l];
+                *a = [
+                    a[0].min(b[l][0]),
+                    a[1].min(b[l][1]),
+                    a[2].max(b[l][2]),
+                    a[3].max(b[l][3]),
+                ];
+            }
+        }
+        let t_geometry = clock.elapsed().as_secs_f64();
+
+        // Albedo tiles of every level in use.
+        let mut levels: Vec<Option<AlbedoLevel>> = (0..=MAX_LEVEL).map(|_| None).collect();
+        let mut all_keys = Vec::new();
+        let mut spans = Vec::new();
+        for l in 0..=MAX_LEVEL {
+            let b = lvl_bbox[l as usize];
+            // Empty (never updated) boxes keep min > max.
+            if b[0] > b[2] || b[0].is_nan() {
+                continue;
+            }
+            let texel = f64::from(1_u32 << l);
+            let scale = 1.0 / texel;
+            let tile_m = texel * ALBEDO_TILE as f64;
+            let m = 2.0 * texel;
+            let tx0 = ((xc + b[0] - m) / tile_m).floor() as i64;
+            let ty0 = ((yc + b[1] - m) / tile_m).floor() as i64;
+            let mut ntx = ((xc + b[2] + m) / tile_m).floor() as i64 - tx0 + 1;
+            let mut nty = ((yc + b[3] + m) / tile_m).floor() as i64 - ty0 + 1;
+            if (ntx * nty) as usize > MAX_FRAME_ALBEDO_TILES {
+                let side = (MAX_FRAME_ALBEDO_TILES as f64).sqrt() as i64;
+                ntx = ntx.min(side);
+                nty = nty.min(side);
+            }
+            let first = all_keys.len();
+            for j in 0..nty {
+                for i in 0..ntx {
+                    all_keys.push(TileKey {
+                        level: l,
+                        tx: tx0 + i,
+                        ty: ty0 + j,
+                    });
+                }
+            }
+            spans.push((l, first, all_keys.len(), tx0, ty0, ntx, nty, scale));
+        }
+        let mut albedo_tiles = terrain.albedo_tiles(&all_keys).into_iter();
+        for (l, first, last, tx0, ty0, ntx, nty, scale) in spans {
+            let tiles: Vec<_> = albedo_tiles.by_ref().take(last - first).collect();
+            levels[l as usize] = Some(AlbedoLevel::new(
+                &tiles,
+                ntx,
+                nty,
+                // Texel centres at (i + ½)·texel: s = x/texel − ½.
+                xc * scale - 0.5 - (tx0 * ALBEDO_TILE as i64) as f64,
+                yc * scale - 0.5 - (ty0 * ALBEDO_TILE as i64) as f64,
+                scale,
+            ));
+        }
+        let t_tiles = clock.elapsed().as_secs_f64();
+
+        // Main pass: per pixel, the intersection, then the albedo at its mip level.
+        let opts = self.options;
+        let gain = opts.exposure as f32;
+
+        let mut pixels = vec![0_u8; n_px];
+        let stats: Vec<RenderStats> = pixels
+            .par_chunks_mut(w as usize * rows_per_chunk)
+            .enumerate()
+            .map(|(chunk, rows)| {
+                let mut st = RenderStats::default();
+                let mut row_first = Pred::default();
+                // Depths of the two rows above: the prediction of a pixel comes from the
+                // pixels above it, so the pixels of a row are independent of each other and
+                // the processor overlaps their look-ups (a left-to-right chain would make
+                // every pixel wait for its neighbour's solution).
+                let mut above = vec![f64::NAN; w as usize];
+                let mut above2 = vec![f64::NAN; w as usize];
+                let mut current = vec![f64::NAN; w as usize];
+                for (r, row) in rows.chunks_mut(w as usize).enumerate() {
+                    let v = (chunk * rows_per_chunk + r) as f64;
+                    let mut pred = row_first;
+                    let mut lod_row = f64::NAN;
+                    let rays = row_rays(v);
+                    for (col, out) in row.iter_mut().enumerate() {
+                        let ray = rays.at(col as f64);
+                        let (a1, a2) = (above[col], above2[col]);
+                        let guess = if a1.is_nan() {
+                            pred.guess()
+                        } else if a2.is_nan() {
+                            Some(a1)
+                        } else {
+                            Some(2.0 * a1 - a2)
+                        };
+                        let sol = intersect(&ray, &scene, guess, &mut st);
+                        current[col] = sol.map_or(f64::NAN, |s| s.0);
+                        let value = match sol {
+                            Some((t, x, y)) => {
+                                pred.push(t);
+                                if col == 0 {
+                                    row_first = Pred {
+                                        t1: Some(t),
+                                        t2: None,
+                                    };
+                                }
+                                // The footprint varies slowly along a row: recomputed every
+                                // 4 pixels.
+                                if col % 4 == 0 || lod_row.is_nan() {
+                                    lod_row = lod_of(&ray, t).0;
+                                }
+                                st.hits += 1;
+                                let l0 = lod_row as u32;
+                                let frac = (lod_row - f64::from(l0)) as f32;
+                                // Both levels inline (a closure here stays a call).
+                                let s0 =
+                                    levels[l0 as usize].as_ref().and_then(|lv| lv.sample(x, y));
+                                let a0 = match s0 {
+                                    Some(a) => a,
+                                    None => {
+                                        // Outside the tiles fetched for the frame: exact.
+                                        st.exact_albedo += 1;
+                                        slow_albedo(terrain, xc + x, yc + y, l0)
+                                    }
+                                };
+                                let a = if frac > 1e-4 && l0 < MAX_LEVEL {
+                                    let l1 = l0 + 1;
+                                    let s1 =
+                                        levels[l1 as usize].as_ref().and_then(|lv| lv.sample(x, y));
+                                    let a1 = match s1 {
+                                        Some(a) => a,
+                                        None => {
+                                            st.exact_albedo += 1;
+                                            slow_albedo(terrain, xc + x, yc + y, l1)
+                                        }
+                                    };
+                                    a0 + frac * (a1 - a0)
+                                } else {
+                                    a0
+                                };
+                                a * gain
+                            }
+                            None => {
+                                pred = Pred::default();
+                                lod_row = f64::NAN;
+                                st.sky += 1;
+                                f32::from(opts.sky_grey)
+                            }
+                        };
+                        let value = if opts.noise_sigma_grey > 0.0 {
+                            let idx = (chunk * rows_per_chunk * w as usize) + r * w as usize + col;
+                            value
+                                + (opts.noise_sigma_grey as f32)
+                                    * approx_normal(opts.noise_seed, idx as i64)
+                        } else {
+                            value
+                        };
+                        // Round half up; `f32::round` is a libm call on baseline x86-64.
+                        *out = (value.clamp(0.0, 255.0) + 0.5) as u8;
+                    }
+                    std::mem::swap(&mut above2, &mut above);
+                    std::mem::swap(&mut above, &mut current);
+                }
+                st
+            })
+            .collect();
+        let mut total = RenderStats::default();
+        for st in stats.iter().chain(coarse.iter().map(|c| &c.0)) {
+            total.hits += st.hits;
+            total.sky += st.sky;
+            total.height_lookups += st.height_lookups;
+            total.marched += st.marched;
+            total.exact_albedo += st.exact_albedo;
+        }
+        total.hits -= coarse.iter().map(|c| c.0.hits).sum::<u64>();
+        total.sky -= coarse.iter().map(|c| c.0.sky).sum::<u64>();
+        let t_end = clock.elapsed().as_secs_f64();
+        total.setup_s = t_setup;
+        total.coarse_s = t_geometry - t_setup;
+        total.albedo_tiles_s = t_tiles - t_geometry;
+        total.main_s = t_end - t_tiles;
+        Ok((
+            GreyImage {
+                width: w,
+                height: h,
+                pixels,
+            },
+            total,
+        ))
+    }
+}
+
+/// Standard normal approximation from one hash: the sum of four 16-bit uniforms (Irwin–Hall,
+/// variance 1/3 after centring) scaled to unit variance. Deterministic per (seed, pixel).
+#[inline]
+fn approx_normal(seed: u64, idx: i64) -> f32 {
+    let h = super::noise::hash2(seed, idx, 0x6e6f_6973);
+    let s: f64 = (0..4).map(|k| super::noise::unit16(h, k)).sum();
+    ((s - 2.0) * 3.0_f64.sqrt()) as f32
+}
+
+/// Fast base-2 logarithm (|error| < 1e-4) for the mip level.
+#[inline]
+fn fast_log2(x: f64) -> f64 {
+    let bits = x.to_bits();
+    let e = ((bits >> 52) & 0x7ff) as i64 - 1023;
+    let m = f64::from_bits((bits & 0x000f_ffff_ffff_ffff) | 0x3ff0_0000_0000_0000);
+    // ln m = 2 atanh s, s = (m − 1)/(m + 1) ∈ [0, 1/3): four odd terms, error < 2e-5.
+    let s = (m - 1.0) / (m + 1.0);
+    let s2 = s * s;
+    let ln = 2.0 * s * (1.0 + s2 * (1.0 / 3.0 + s2 * (0.2 + s2 * (1.0 / 7.0))));
+    let p = ln * std::f64::consts::LOG2_E;
+    e as f64 + p
+}
+
+/// Pixel-to-pixel memory of a row: the last two solutions' depths.
+#[derive(Debug, Clone, Copy, Default)]
+struct Pred {
+    t1: Option<f64>,
+    t2: Option<f64>,
+}
+
+impl Pred {
+    /// Linear extrapolation of the depth from the last two pixels (or the last one).
+    fn guess(&self) -> Option<f64> {
+        match (self.t1, self.t2) {
+            (Some(a), Some(b)) => Some(2.0 * a - b),
+            (Some(a), None) => Some(a),
+            _ => None,
+        }
+    }
+    fn push(&mut self, t: f64) {
+        self.t2 = self.t1;
+        self.t1 = Some(t);
+    }
+}
+
+/// Frame-wide constants of the intersection.
+struct Scene<'a> {
+    table: &'a HeightTable<'a>,
+    h_lo: f64,
+    h_hi: f64,
+    slope_bound: f64,
+    far_slope_bound: f64,
+    /// Every ray of the frame has a strictly decreasing `f` over the slab.
+    all_monotone: bool,
+    camera_ground_t: Option<f64>,
+}
+
+/// Largest height mismatch accepted with one Newton correction and no further look-up, m:
+/// the step is exact on a bilinear cell, and across a cell edge its error is below
+/// `ACCEPT · Δslope`, a few centimetres on the ground.
+const NEWTON_ACCEPT_M: f64 = 0.2;
+
+/// `f(t)`, `f'(t)` and the texture point of the ray at `t`.
+#[inline(always)]
+fn eval(ray: &Ray, table: &HeightTable<'_>, t: f64, lookups: &mut u64) -> (f64, f64, f64, f64) {
+    *lookups += 1;
+    let (x, y, hr) = ray.xyh(t);
+    let (h, hx, hy) = table.height_grad(x, y);
+    let dh = ray.ch1 + 2.0 * ray.ch2 * t;
+    let dx = ray.cx1 + 2.0 * ray.cx2 * t;
+    let dy = ray.cy1 + 2.0 * ray.cy2 * t;
+    (hr - h, dh - hx * dx - hy * dy, x, y)
+}
+
+/// Whether `f` is strictly decreasing on `[0, t_bot]` for this ray: `f' ≤ h' + L·|(x', y')|`
+/// with `h' = ch1 + 2 ch2 t` and the horizontal rate at most `|(cx1, cy1)| + 2 t |(cx2, cy2)|`.
+#[inline]
+fn monotone(ray: &Ray, t_bot: f64, slope_bound: f64, margin: f64) -> bool {
+    let hor1 = (ray.cx1 * ray.cx1 + ray.cy1 * ray.cy1).sqrt();
+    let hor2 = (ray.cx2 * ray.cx2 + ray.cy2 * ray.cy2).sqrt();
+    ray.ch1 + 2.0 * ray.ch2.max(0.0) * t_bot + slope_bound * (hor1 + 2.0 * hor2 * t_bot)
+        < margin * ray.ch1
+}
+
+/// Intersection of `ray` with the terrain: `(t, x, y)`, or `None` for sky.
+#[inline(always)]
+fn intersect(
+    ray: &Ray,
+    sc: &Scene<'_>,
+    guess: Option<f64>,
+    st: &mut RenderStats,
+) -> Option<(f64, f64, f64)> {
+    let mut lookups = 0_u64;
+    let mut start = None;
+    if sc.all_monotone {
+        // Fast path: one look-up at the predicted depth, one Newton step.
+        if let Some(t0) = guess.filter(|t| *t > 0.0 && *t * ray.norm < MAX_RANGE_M) {
+            let (f0, d0, x0, y0) = eval(ray, sc.table, t0, &mut lookups);
+            if d0 < 0.0 && f0.is_finite() {
+                let dt = -f0 / d0;
+                let t1 = t0 + dt;
+                if f0.abs() < NEWTON_ACCEPT_M && t1 > 0.0 && t1 * ray.norm < MAX_RANGE_M {
+                    st.height_lookups += lookups;
+                    // The point moves along the ray's tangent; the curvature term
+                    // `c₂ δt²` of a centimetre-sized step is far below a micrometre.
+                    let x = x0 + (ray.cx1 + 2.0 * ray.cx2 * t0) * dt;
+                    let y = y0 + (ray.cy1 + 2.0 * ray.cy2 * t0) * dt;
+                    return Some((t1, x, y));
+                }
+                start = Some(t1);
+            }
+        }
+    }
+    let result = intersect_slow(ray, sc, guess, start, &mut lookups, st);
+    st.height_lookups += lookups;
+    result
+}
+
+/// The general case of [`intersect`] (slab bracket, Newton or march), out of line so that the
+/// fast path stays small.
+#[inline(never)]
+fn intersect_slow(
+    ray: &Ray,
+    sc: &Scene<'_>,
+    guess: Option<f64>,
+    start: Option<f64>,
+    lookups: &mut u64,
+    st: &mut RenderStats,
+) -> Option<(f64, f64, f64)> {
+    let t_far = MAX_RANGE_M / ray.norm;
+    let t_top = ray.cross(sc.h_hi)?;
+    if t_top >= t_far {
+        return None;
+    }
+    let t_bot = ray.cross(sc.h_lo).map_or(t_far, |t| t.min(t_far));
+    let in_table = sc.table.covers_frame;
+    if t_bot < t_far && in_table && (sc.all_monotone || monotone(ray, t_bot, sc.slope_bound, 0.0)) {
+        // Unique root in [t_top, t_bot].
+        let guess = start
+            .or(guess)
+            .or(sc.camera_ground_t)
+            .unwrap_or(0.5 * (t_top + t_bot));
+        solve_newton(ray, sc.table, t_top, t_bot, guess, lookups)
+    } else {
+        st.marched += 1;
+        let bound = if in_table {
+            sc.slope_bound
+        } else {
+            sc.far_slope_bound
+        };
+        march(
+            ray,
+            sc.table,
+            t_top,
+            t_bot.max(t_top),
+            t_far,
+            bound,
+            lookups,
+        )
+    }
+}
+
+/// Root of `f` in `[a, b]` where `f(a) ≥ 0 ≥ f(b)`: Newton steps (exact derivative of the
+/// bilinear surface) kept inside the shrinking bracket, bisection when a step leaves it.
+fn solve_newton(
+    ray: &Ray,
+    table: &HeightTable<'_>,
+    mut a: f64,
+    mut b: f64,
+    guess: f64,
+    lookups: &mut u64,
+) -> Option<(f64, f64, f64)> {
+    let mut t = if guess > a && guess < b {
+        guess
+    } else {
+        0.5 * (a + b)
+    };
+    for _ in 0..MAX_SECANT_ITER {
+        let (fv, dv, x, y) = eval(ray, table, t, lookups);
+        if !fv.is_finite() {
+            return None;
+        }
+        if fv.abs() < TOL_H_M {
+            return Some((t, x, y));
+        }
+        if fv > 0.0 {
+            a = t;
+        } else {
+            b = t;
+        }
+        if b - a <= 1e-9 * b.max(1.0) {
+            return Some((t, x, y));
+        }
+        let tn = if dv < 0.0 { t - fv / dv } else { f64::NAN };
+        t = if tn > a && tn < b { tn } else { 0.5 * (a + b) };
+    }
+    let (x, y, _) = ray.xyh(t);
+    Some((t, x, y))
+}
+
+/// First root of `f` beyond `t_top` by a Lipschitz march: `f` can fall at most at rate
+/// `D = |h'| + L |(x', y')|`, so a step of `f/D` never jumps over a crossing.
+fn march(
+    ray: &Ray,
+    table: &HeightTable<'_>,
+    t_top: f64,
+    t_bot: f64,
+    t_far: f64,
+    slope_bound: f64,
+    lookups: &mut u64,
+) -> Option<(f64, f64, f64)> {
+    let t_end = t_bot.max(t_top).min(t_far);
+    let hor1 = (ray.cx1 * ray.cx1 + ray.cy1 * ray.cy1).sqrt();
+    let hor2 = (ray.cx2 * ray.cx2 + ray.cy2 * ray.cy2).sqrt();
+    let rate = ray.ch1.abs()
+        + 2.0 * ray.ch2.abs() * t_end
+        + slope_bound * (hor1 + 2.0 * hor2 * t_end)
+        + 1e-9;
+    // Smallest step: 5 cm along the ray.
+    let min_step = 0.05 / ray.norm;
+    let mut t = t_top;
+    let (mut fv, _, x, y) = eval(ray, table, t, lookups);
+    if !fv.is_finite() {
+        return None;
+    }
+    if fv <= 0.0 {
+        // Already below at the slab top (camera inside the slab, next to a wall).
+        return Some((t, x, y));
+    }
+    for _ in 0..MAX_MARCH_STEPS {
+        let t_next = (t + (fv / rate).max(min_step)).min(t_end);
+        let (f_next, _, _, _) = eval(ray, table, t_next, lookups);
+        if !f_next.is_finite() {
+            return None;
+        }
+        if f_next <= 0.0 {
+            return solve_newton(ray, table, t, t_next, t_next, lookups);
+        }
+        if t_next >= t_end {
+            return None;
+        }
+        t = t_next;
+        fv = f_next;
+    }
+    None
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn ray_slab_crossings() {
+        let ray = Ray {
+            cx1: 0.0,
+            cx2: 0.0,
+            cy1: 0.0,
+            cy2: 0.0,
+            h0: 1000.0,
+            ch1: -1.0,
+            ch2: 1e-7,
+            norm: 1.0,
+        };
+        let t = ray.cross(200.0).unwrap();
+        assert!((ray.xyh(t).2 - 200.0).abs() < 1e-9);
+        assert_eq!(ray.cross(2000.0), Some(0.0));
+        let up = Ray { ch1: 0.5, ..ray };
+        assert_eq!(up.cross(200.0), None);
+    }
+
+    #[test]
+    fn fast_log2_is_accurate() {
+        for k in 0..2000 {
+            let x = 1e-3 * 1.0071_f64.powi(k);
+            assert!((fast_log2(x) - x.log2()).abs() < 1e-4, "{x}");
+        }
+    }
+}
