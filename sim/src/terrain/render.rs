@@ -284,35 +284,6 @@ impl HeightTable<'_> {
             fy,
         )
     }
-
-    #[allow(dead_code)]
-    #[inline]
-    fn height(&self, x: f64, y: f64) -> f64 {
-        let gx = x * (1.0 / HEIGHT_SPACING_M) + self.ox;
-        let gy = y * (1.0 / HEIGHT_SPACING_M) + self.oy;
-        let (ix, fx) = split_floor(gx);
-        let (iy, fy) = split_floor(gy);
-        let (tx, ty) = (
-            ix >> HEIGHT_TILE.trailing_zeros(),
-            iy >> HEIGHT_TILE.trailing_zeros(),
-        );
-        if tx < 0 || ty < 0 || tx >= self.ntx || ty >= self.nty {
-            return self.terrain.height_xy_m(self.xc + x, self.yc + y);
-        }
-        let tile = &self.tiles[(ty * self.ntx + tx) as usize];
-        let lx = (ix - tx * HEIGHT_TILE as i64) as usize;
-        let ly = (iy - ty * HEIGHT_TILE as i64) as usize;
-        let k = ly * HEIGHT_STRIDE + lx;
-        let h = &tile.h_m;
-        super::bilinear(
-            h[k],
-            h[k + 1],
-            h[k + HEIGHT_STRIDE],
-            h[k + HEIGHT_STRIDE + 1],
-            fx,
-            fy,
-        )
-    }
 }
 
 /// The albedo of one mip level over the frame's ground: its tiles copied side by side into
