@@ -12,5 +12,6 @@ pub mod env;
 pub mod ins;
 pub mod io;
 pub mod math;
+pub mod nav;
 pub mod sensors;
 pub mod vision;

@@ -1,4 +1,5 @@
 //! Input and output of the navigation core: the sensor log format used to record flights
-//! (and, later, to replay them and to feed the daemon's tests).
+//! (and to replay them), and the camera frame stream from the vehicle.
 
+pub mod frame_stream;
 pub mod sensor_log;

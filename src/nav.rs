@@ -1,0 +1,183 @@
+//! The navigation core seen by its drivers (ARCHITECTURE "The navigation core"; paper, "IA-VNS
+//! flow diagram"): one synchronous object fed timestamped [`SensorEvent`]s that returns
+//! solutions. For now it wraps the GNSS-denied INS and passes camera frames through (counted)
+//! until the visual navigation lands; the daemon, the simulator and the Monte Carlo all drive
+//! this same type.
+//!
+//! Unlike the simulator, which knows the truth, a daemon must start the INS from what the
+//! vehicle tells it (first GNSS fix, the autopilot's attitude): [`Navigator::initialise`]
+//! takes that [`InsInit`]; events pushed before it are counted and dropped.
+
+use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
+use crate::sensors::SensorEvent;
+
+/// What the visual navigation contributes to a solution.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VisionStatus {
+    /// No visual navigation yet (the INS alone; frames are counted and dropped).
+    Inactive,
+}
+
+/// One fused solution.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct NavSolution {
+    /// The INS solution (position, velocity, attitude and their covariances).
+    pub ins: InsSolution,
+    /// State of the visual navigation.
+    pub vision: VisionStatus,
+    /// Incremented at every (re)initialisation: consumers must not difference positions
+    /// across a change (MAVLink `reset_counter`).
+    pub reset_counter: u8,
+}
+
+/// Counters of the navigator (the INS keeps its own, see [`Navigator::ins_stats`]).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct NavigatorStats {
+    /// Events dropped because the INS was not initialised yet.
+    pub events_before_init: u64,
+    /// Camera frames received.
+    pub frames: u64,
+    /// (Re)initialisations.
+    pub initialisations: u64,
+}
+
+/// The navigation core.
+#[derive(Debug, Clone)]
+pub struct Navigator {
+    cfg: InsConfig,
+    ins: Option<Ins>,
+    stats: NavigatorStats,
+    reset_counter: u8,
+}
+
+impl Navigator {
+    /// A navigator waiting for [`Navigator::initialise`]. Fails on an invalid configuration.
+    pub fn new(cfg: &InsConfig) -> Result<Self, InsError> {
+        cfg.validate()?;
+        Ok(Self {
+            cfg: cfg.clone(),
+            ins: None,
+            stats: NavigatorStats::default(),
+            reset_counter: 0,
+        })
+    }
+
+    /// (Re)start the INS from `init`. A failed initialisation leaves the previous state.
+    pub fn initialise(&mut self, init: &InsInit) -> Result<(), InsError> {
+        let ins = Ins::new(&self.cfg, init)?;
+        if self.ins.is_some() {
+            self.reset_counter = self.reset_counter.wrapping_add(1);
+        }
+        self.ins = Some(ins);
+        self.stats.initialisations += 1;
+        Ok(())
+    }
+
+    /// Whether [`Navigator::initialise`] has succeeded.
+    pub fn is_initialised(&self) -> bool {
+        self.ins.is_some()
+    }
+
+    /// Whether the INS is in GNSS-denied mode.
+    pub fn gnss_denied(&self) -> bool {
+        self.ins.as_ref().is_some_and(Ins::gnss_denied)
+    }
+
+    /// Feed one event; an accepted IMU sample returns the solution at its time.
+    pub fn push(&mut self, event: &SensorEvent) -> Option<NavSolution> {
+        if matches!(event, SensorEvent::Frame(_)) {
+            self.stats.frames += 1;
+        }
+        let Some(ins) = self.ins.as_mut() else {
+            self.stats.events_before_init += 1;
+            return None;
+        };
+        ins.push(event).map(|ins| NavSolution {
+            ins,
+            vision: VisionStatus::Inactive,
+            reset_counter: self.reset_counter,
+        })
+    }
+
+    /// Counters of the navigator.
+    pub fn stats(&self) -> &NavigatorStats {
+        &self.stats
+    }
+
+    /// Counters of the INS (`None` before the initialisation).
+    pub fn ins_stats(&self) -> Option<&crate::ins::InsStats> {
+        self.ins.as_ref().map(Ins::stats)
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::wgs84::Geodetic;
+    use crate::sensors::{AirSample, ImuSample};
+    use nalgebra::{UnitQuaternion, Vector3};
+
+    fn init() -> InsInit {
+        let pos = Geodetic {
+            lat_rad: 0.7,
+            lon_rad: -1.5,
+            h_m: 1_000.0,
+        };
+        InsInit::new(
+            UnitQuaternion::identity(),
+            pos,
+            Vector3::new(30.0, 0.0, 0.0),
+            2026.5,
+        )
+    }
+
+    fn air(t_us: u64) -> SensorEvent {
+        SensorEvent::Air(AirSample {
+            t_us,
+            tas_mps: 30.0,
+            aoa_rad: Some(0.05),
+            aos_rad: Some(0.0),
+            p_pa: 89_874.0,
+            temp_k: 281.65,
+        })
+    }
+
+    fn imu(t_us: u64) -> SensorEvent {
+        SensorEvent::Imu(ImuSample {
+            t_us,
+            gyro_rps: Vector3::zeros(),
+            accel_mps2: Vector3::new(0.0, 0.0, -9.8),
+        })
+    }
+
+    #[test]
+    fn events_before_the_initialisation_are_counted_and_resets_are_numbered() {
+        let mut nav = Navigator::new(&InsConfig::default()).unwrap();
+        assert!(nav.push(&imu(0)).is_none());
+        assert_eq!(nav.stats().events_before_init, 1);
+        nav.initialise(&init()).unwrap();
+        assert!(nav.push(&air(5_000)).is_none());
+        let first = nav.push(&imu(10_000)).expect("solution after air + IMU");
+        assert_eq!(
+            (first.reset_counter, first.vision),
+            (0, VisionStatus::Inactive)
+        );
+        let next = nav.push(&imu(20_000)).expect("solution");
+        assert_eq!(next.ins.t_us, 20_000);
+        nav.initialise(&init()).unwrap();
+        nav.push(&air(25_000));
+        assert_eq!(nav.push(&imu(30_000)).unwrap().reset_counter, 1);
+        assert_eq!(nav.stats().initialisations, 2);
+    }
+
+    #[test]
+    fn a_bad_initialisation_keeps_the_running_ins() {
+        let mut nav = Navigator::new(&InsConfig::default()).unwrap();
+        nav.initialise(&init()).unwrap();
+        let mut bad = init();
+        bad.pos.h_m = f64::NAN;
+        assert!(nav.initialise(&bad).is_err());
+        assert!(nav.is_initialised());
+        assert_eq!(nav.stats().initialisations, 1);
+    }
+}
