@@ -2,6 +2,7 @@
 //! "Mathematical Notation" (right perturbations, `X ⊕ τ = X ∘ Exp(τ)`), and angle wrapping.
 
 pub mod angle;
+pub mod map_projection;
 pub mod se3;
 pub mod so3;
 pub mod wgs84;
