@@ -392,8 +392,24 @@ fn run(
     }
     let n_frames = saver.count;
     bar.finish();
-    if n_frames > 0 {
-        println!("{n_frames} camera frames rendered");
+    if let (Some(cam), true) = (setup.camera.as_ref(), n_frames > 0) {
+        let (h, a) = cam.terrain.cache_stats();
+        let mb = |b: usize| b as f64 / 1e6;
+        println!(
+            "{n_frames} camera frames rendered, {:.1} ms each (wall, flight included); tile caches: \
+             heights {} held ({} generated, {} evicted, peak {:.1} MB), albedo {} held ({} \
+             generated, {} evicted, peak {:.1} MB); budget {:.1} MB",
+            started.elapsed().as_secs_f64() * 1e3 / n_frames as f64,
+            h.tiles,
+            h.generated,
+            h.evicted,
+            mb(h.peak_bytes),
+            a.tiles,
+            a.generated,
+            a.evicted,
+            mb(a.peak_bytes),
+            mb(cam.terrain.cache_budget_bytes())
+        );
     }
     let report = writer.finish(&summary)?;
     println!(

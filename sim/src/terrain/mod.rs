@@ -22,6 +22,8 @@ pub mod zones;
 
 use std::str::FromStr;
 
+use noise::fast_floor;
+
 use ianav::math::wgs84;
 use serde::{Deserialize, Serialize};
 
@@ -251,7 +253,7 @@ impl Terrain {
     pub fn height_xy_m(&self, x: f64, y: f64) -> f64 {
         let gx = x / HEIGHT_SPACING_M;
         let gy = y / HEIGHT_SPACING_M;
-        let (fx, fy) = (gx.floor(), gy.floor());
+        let (fx, fy) = (fast_floor(gx), fast_floor(gy));
         let (i, j) = (fx as i64, fy as i64);
         bilinear(
             self.lattice_m(i, j),
@@ -267,7 +269,7 @@ impl Terrain {
     pub fn height_grad_xy_m(&self, x: f64, y: f64) -> (f64, f64, f64) {
         let gx = x / HEIGHT_SPACING_M;
         let gy = y / HEIGHT_SPACING_M;
-        let (fx, fy) = (gx.floor(), gy.floor());
+        let (fx, fy) = (fast_floor(gx), fast_floor(gy));
         let (i, j) = (fx as i64, fy as i64);
         bilinear_grad(
             self.lattice_m(i, j),
@@ -408,8 +410,8 @@ mod tests {
         let (x, y) = t.texture_xy(start.lat_deg.to_radians(), start.lon_deg.to_radians());
         let key = TileKey {
             level: 0,
-            tx: (x / (HEIGHT_SPACING_M * HEIGHT_TILE as f64)).floor() as i64,
-            ty: (y / (HEIGHT_SPACING_M * HEIGHT_TILE as f64)).floor() as i64,
+            tx: fast_floor(x / (HEIGHT_SPACING_M * HEIGHT_TILE as f64)) as i64,
+            ty: fast_floor(y / (HEIGHT_SPACING_M * HEIGHT_TILE as f64)) as i64,
         };
         let tile = &t.height_tiles(&[key])[0];
         let (i0, j0) = (key.tx * 128, key.ty * 128);

@@ -9,6 +9,14 @@
 //! already low-passed and does not alias (Ebert et al., "Texturing and Modeling", ch. 2,
 //! clamping and analytic anti-aliasing).
 
+/// `⌊x⌋`, equal to `f64::floor` for |x| < 2⁶³ (all texture coordinates), without the libm
+/// call `floor` becomes on baseline x86-64 (it was ~12 % of the tile generation time).
+#[inline(always)]
+pub fn fast_floor(x: f64) -> f64 {
+    let t = x as i64 as f64;
+    if t > x { t - 1.0 } else { t }
+}
+
 /// 64-bit mix of a seed and two lattice indices (SplitMix64 finaliser).
 #[inline]
 pub fn hash2(seed: u64, ix: i64, iy: i64) -> u64 {
@@ -57,7 +65,7 @@ pub fn lerp(a: f64, b: f64, t: f64) -> f64 {
 /// Quintic interpolation: C² and with zero derivative at lattice points.
 #[inline]
 pub fn value_noise_d(seed: u64, x: f64, y: f64) -> (f64, f64, f64) {
-    let (xf, yf) = (x.floor(), y.floor());
+    let (xf, yf) = (fast_floor(x), fast_floor(y));
     let (ix, iy) = (xf as i64, yf as i64);
     let (fx, fy) = (x - xf, y - yf);
     let v = |i: i64, j: i64| unit(hash2(seed, ix + i, iy + j)) * 2.0 - 1.0;
@@ -184,7 +192,7 @@ pub struct Cell {
 /// of the cell).
 pub fn cellular(seed: u64, x: f64, y: f64, cell_m: f64, jitter: f64) -> Cell {
     let (gx, gy) = (x / cell_m, y / cell_m);
-    let (cx, cy) = (gx.floor() as i64, gy.floor() as i64);
+    let (cx, cy) = (fast_floor(gx) as i64, fast_floor(gy) as i64);
     let mut best = Cell {
         d1_m: f64::INFINITY,
         d2_m: f64::INFINITY,
@@ -252,6 +260,30 @@ pub fn detail(size_m: f64, filter_m: f64) -> f64 {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn fast_floor_equals_floor() {
+        for x in [
+            0.0,
+            -0.0,
+            0.5,
+            -0.5,
+            1.0,
+            -1.0,
+            2.999_999_999,
+            -2.000_000_1,
+            1e15 + 0.5,
+            -1e15 - 0.5,
+            4.5e15,
+            -4.5e15,
+            1e18,
+            -1e18,
+            f64::EPSILON,
+            -f64::EPSILON,
+        ] {
+            assert_eq!(fast_floor(x), x.floor(), "{x}");
+        }
+    }
 
     #[test]
     fn value_noise_gradient_matches_finite_differences() {

@@ -9,8 +9,8 @@
 
 use super::Zone;
 use super::noise::{
-    Cell, band, cellular, detail, fbm, hash2, inside, lerp, ridged, smoothstep, sub_seed, unit,
-    unit16, value_noise_d,
+    Cell, band, cellular, detail, fast_floor, fbm, hash2, inside, lerp, ridged, smoothstep,
+    sub_seed, unit, unit16, value_noise_d,
 };
 
 /// Height bounds of each zone, m: every height is clamped into them, so a ray that crosses
@@ -194,8 +194,8 @@ fn residential(
     tree_cover: f64,
     f: f64,
 ) -> f64 {
-    let bu = (u / block_l).floor();
-    let bv = (v / block_w).floor();
+    let bu = fast_floor(u / block_l);
+    let bv = fast_floor(v / block_w);
     let lu = u - bu * block_l;
     let lv = v - bv * block_w;
     let d_street = lu.min(block_l - lu).min(lv.min(block_w - lv));
@@ -203,7 +203,7 @@ fn residential(
     let lot_w = 15.0 + 7.0 * unit16(hb, 0);
     let depth = 0.5 * block_w - street_hw;
     let row = if lv < 0.5 * block_w { 0 } else { 1 };
-    let lot_i = ((lu - street_hw) / lot_w).floor();
+    let lot_i = fast_floor((lu - street_hw) / lot_w);
     let cu = street_hw + (lot_i + 0.5) * lot_w;
     let lh = hash2(
         seed ^ 0x10f5,
@@ -273,8 +273,8 @@ fn commercial(
     street_hw: f64,
     f: f64,
 ) -> f64 {
-    let bu = (u / block_l).floor();
-    let bv = (v / block_w).floor();
+    let bu = fast_floor(u / block_l);
+    let bv = fast_floor(v / block_w);
     let lu = u - bu * block_l;
     let lv = v - bv * block_w;
     let d_street = lu.min(block_l - lu).min(lv.min(block_w - lv));
@@ -300,8 +300,8 @@ fn commercial(
         // Rooftop units: small dark squares on a 9 m grid.
         let units = {
             let (gu, gv) = ((lu - cu) / 9.0, (lv - cv) / 9.0);
-            let (fu, fv) = (gu - gu.floor() - 0.5, gv - gv.floor() - 0.5);
-            let uh = hash2(kh, gu.floor() as i64, gv.floor() as i64);
+            let (fu, fv) = (gu - fast_floor(gu) - 0.5, gv - fast_floor(gv) - 0.5);
+            let uh = hash2(kh, fast_floor(gu) as i64, fast_floor(gv) as i64);
             if unit16(uh, 0) < 0.35 {
                 inside(box_sd(fu * 9.0, fv * 9.0, 1.6, 1.6), f) * detail(3.2, f)
             } else {
@@ -382,7 +382,7 @@ fn farm(seed: u64, x: f64, y: f64, f: f64) -> f64 {
     let s = |l| sub_seed(seed, l);
     // Square-mile sections with roads on most section lines.
     const SEC: f64 = 1_609.0;
-    let (su, sv) = ((x / SEC).floor(), (y / SEC).floor());
+    let (su, sv) = (fast_floor(x / SEC), fast_floor(y / SEC));
     let (lx, ly) = (x - su * SEC, y - sv * SEC);
     let hs = hash2(s(L_FIELDS), su as i64, sv as i64);
     // Fields: a section is one field, two halves or four quarters; quarters may be halved.
@@ -589,14 +589,14 @@ fn prairie(seed: u64, x: f64, y: f64, f: f64) -> f64 {
     }
     // A few straight dirt roads with a canal alongside, and landing strips.
     const SP: f64 = 6_500.0;
-    let ri = (x / SP).floor();
+    let ri = fast_floor(x / SP);
     let rh = hash2(s(L_ROAD), ri as i64, 0);
     if unit16(rh, 0) < 0.45 {
         let cx = ri * SP + SP * unit16(rh, 1);
         a = lerp(a, 0.08, band(x - cx - 14.0, 5.0, f));
         a = lerp(a, 0.6, band(x - cx, 3.0, f));
     }
-    let rj = (y / SP).floor();
+    let rj = fast_floor(y / SP);
     let rh = hash2(s(L_ROAD), 0, rj as i64 + 99);
     if unit16(rh, 0) < 0.3 {
         let cy = rj * SP + SP * unit16(rh, 1);
@@ -632,8 +632,8 @@ fn urban(seed: u64, x: f64, y: f64, f: f64) -> f64 {
         let (tm, ta) = trees(s(L_TREES), x, y, 9.0, 0.45, 0.2, f);
         let lawn = 0.27 + 0.03 * fbm(s(L_TEX1), x, y, 60.0, 3, 0.5, f);
         let mut p = lerp(lawn, ta, tm);
-        let bu = (u / 300.0).floor();
-        let bv = (v / 200.0).floor();
+        let bu = fast_floor(u / 300.0);
+        let bv = fast_floor(v / 200.0);
         let h = hash2(d.id, bu as i64, bv as i64);
         let (lu, lv) = (u - bu * 300.0 - 150.0, v - bv * 200.0 - 100.0);
         p = lerp(
@@ -669,7 +669,7 @@ fn urban(seed: u64, x: f64, y: f64, f: f64) -> f64 {
         let (sn, cs) = ang.sin_cos();
         let w = cs * x + sn * y;
         const SP: f64 = 4_300.0;
-        let i = (w / SP).floor();
+        let i = fast_floor(w / SP);
         let h = hash2(s(L_FREEWAY), i as i64, k);
         if unit16(h, 0) < 0.7 {
             let c = i * SP + SP * (0.2 + 0.6 * unit16(h, 1));
