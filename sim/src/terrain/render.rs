@@ -18,8 +18,11 @@
 //!   it by construction). If the terrain's slope bound `L` (per tile, from the lattice) is
 //!   below the ray's descent rate over its horizontal rate, `f` is strictly decreasing: one
 //!   root, found by one Newton step (exact gradient of the bilinear surface) from a depth
-//!   predicted by the two pixels above (typically one height look-up per pixel), with a
-//!   bracketed Newton/bisection fallback. Otherwise (grazing rays, steep desert flanks) a
+//!   predicted by the two solved pixels above (one height look-up per solved pixel), with a
+//!   bracketed Newton/bisection fallback. When every ray of the frame is monotone, only every
+//!   other row and column is solved and the ground points between are midpoints of their
+//!   neighbours' (error ≤ 0.1 m on steep relief, mm on gentle ground; `exact_geometry` turns
+//!   it off). Otherwise (grazing rays, steep desert flanks) a
 //!   Lipschitz march (steps `f/D`, `D` the largest rate at which `f` can fall) finds the first
 //!   crossing without skipping any, then refines it. Every loop has a fixed cap, so the
 //!   renderer always terminates; a ray that meets nothing within 15 km is sky (the frame's
