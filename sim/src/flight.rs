@@ -1032,6 +1032,47 @@ mod tests {
     }
 
     #[test]
+    fn a_fresh_position_aid_replaces_the_horizontal_estimate_and_a_stale_one_does_not() {
+        let setup = FlightSetup::builtin(2).unwrap();
+        let mut flight = Flight::new(&setup, 3).unwrap();
+        while flight.ins_solution.is_none() {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        let t_us = flight.t_us();
+        let truth = flight.truth().pos;
+        // 1 km north of the truth, valid now, usable for 0.5 s.
+        let aid = PositionAid {
+            t_us,
+            lat_rad: truth.lat_rad + 1_000.0 / wgs84::radius_meridian_m(truth.lat_rad),
+            lon_rad: truth.lon_rad,
+        };
+        flight.set_position_aid(aid, 500_000);
+        // Step to the next sensor instant (10 ms): the aid, carried by the INS velocity.
+        for _ in 0..5 {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        assert!(flight.position_aid_used());
+        let est = *flight.estimate();
+        let carried = wgs84::ned_difference_m(&flight.truth().pos, &est.pos);
+        assert!((carried.x - 1_000.0).abs() < 2.0, "{carried:?}");
+        assert!(carried.y.abs() < 2.0, "{carried:?}");
+        let ins_pos = flight.ins_solution.unwrap().pos;
+        assert!(
+            (est.pos.h_m - ins_pos.h_m).abs() < 1e-9,
+            "height stays the INS's"
+        );
+        // 0.6 s later the aid is stale: back to the INS (within metres of the truth).
+        for _ in 0..300 {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        assert!(!flight.position_aid_used());
+        let d = wgs84::ned_difference_m(&flight.truth().pos, &flight.estimate().pos);
+        assert!(d.x.hypot(d.y) < 50.0, "{d:?}");
+        flight.clear_position_aid();
+        assert!(flight.position_aid.is_none());
+    }
+
+    #[test]
     fn a_departed_flight_stops_with_an_error() {
         let setup = FlightSetup::builtin(2).unwrap();
         let mut flight = Flight::new(&setup, 1).unwrap();

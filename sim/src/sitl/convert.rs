@@ -196,7 +196,9 @@ pub fn gps_input_fix(m: &apm::GPS_INPUT_DATA) -> Result<ExternalFix, ExternalFix
     }
     let (lat, lon) = (rad_from_deg_e7(m.lat), rad_from_deg_e7(m.lon));
     let h_m = f64::from(m.alt);
-    if lat.abs() > std::f64::consts::FRAC_PI_2 || lon.abs() > std::f64::consts::PI || !h_m.is_finite()
+    if lat.abs() > std::f64::consts::FRAC_PI_2
+        || lon.abs() > std::f64::consts::PI
+        || !h_m.is_finite()
     {
         return Err(ExternalFixError::Invalid);
     }
@@ -258,12 +260,17 @@ mod tests {
             assert!((qc / q - 1.0 - m * m / 4.0).abs() < 1e-3, "{tas}");
         }
         // At 3,000 m ISA the density ratio is 0.742: CAS ≈ TAS·√σ (EAS) within 0.5 %.
-        let (p, t) = (atmosphere::pressure_pa(3000.0), atmosphere::isa_temperature_k(3000.0));
+        let (p, t) = (
+            atmosphere::pressure_pa(3000.0),
+            atmosphere::isa_temperature_k(3000.0),
+        );
         let tas = 50.0;
         let cas = cas_mps(impact_pressure_pa(tas, p, t));
         let eas = tas * (density_kgpm3(p, t) / density_kgpm3(P0_PA, T0_K)).sqrt();
         assert!((cas / eas - 1.0).abs() < 5e-3, "{cas} {eas}");
-        assert!((tas_from_impact_pressure_mps(impact_pressure_pa(tas, p, t), p, t) - tas).abs() < 1e-9);
+        assert!(
+            (tas_from_impact_pressure_mps(impact_pressure_pa(tas, p, t), p, t) - tas).abs() < 1e-9
+        );
     }
 
     #[test]
@@ -289,10 +296,16 @@ mod tests {
         assert_eq!(fix.stamp_us, 7);
         assert_eq!(odometry_fix(&odo, None), Err(ExternalFixError::NoOrigin));
         odo.x = f32::NAN;
-        assert_eq!(odometry_fix(&odo, Some(&proj)), Err(ExternalFixError::Invalid));
+        assert_eq!(
+            odometry_fix(&odo, Some(&proj)),
+            Err(ExternalFixError::Invalid)
+        );
         odo.x = 0.0;
         odo.frame_id = apm::MavFrame::MAV_FRAME_BODY_FRD;
-        assert_eq!(odometry_fix(&odo, Some(&proj)), Err(ExternalFixError::Frame));
+        assert_eq!(
+            odometry_fix(&odo, Some(&proj)),
+            Err(ExternalFixError::Frame)
+        );
         let mut gps = apm::GPS_INPUT_DATA {
             lat: 450_000_000,
             lon: -900_000_000,

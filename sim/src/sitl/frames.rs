@@ -68,7 +68,11 @@ pub fn spawn(listener: TcpListener) -> (FrameSender, Arc<FrameStats>, tokio::tas
     )
 }
 
-async fn serve(listener: TcpListener, mut rx: mpsc::Receiver<(u32, Frame)>, stats: Arc<FrameStats>) {
+async fn serve(
+    listener: TcpListener,
+    mut rx: mpsc::Receiver<(u32, Frame)>,
+    stats: Arc<FrameStats>,
+) {
     let mut client: Option<TcpStream> = None;
     let mut buf = Vec::new();
     loop {

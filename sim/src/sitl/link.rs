@@ -195,7 +195,9 @@ pub async fn run(
                     }
                     // Malformed content is skipped; transport errors (a TCP peer gone) are
                     // retried slowly: the peer may come back on a UDP link.
-                    Err(MessageReadError::Io(_)) => tokio::time::sleep(Duration::from_millis(100)).await,
+                    Err(MessageReadError::Io(_)) => {
+                        tokio::time::sleep(Duration::from_millis(100)).await
+                    }
                     Err(_) => {}
                 }
             }
@@ -312,7 +314,8 @@ pub async fn run(
             );
         }
         if options.speed > 0.0 {
-            let due = started + Duration::from_secs_f64((t_us - t0_us) as f64 * 1e-6 / options.speed);
+            let due =
+                started + Duration::from_secs_f64((t_us - t0_us) as f64 * 1e-6 / options.speed);
             let now = Instant::now();
             if due > now {
                 lag_s = 0.0;

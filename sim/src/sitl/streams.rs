@@ -172,7 +172,12 @@ impl Streams {
 
     /// Apply `MAV_CMD_SET_MESSAGE_INTERVAL` (param1 = message id, param2 = interval µs:
     /// −1 off, 0 default) at vehicle time `now_us`.
-    pub fn set_interval(&mut self, id_param: f32, interval_param: f32, now_us: u64) -> IntervalOutcome {
+    pub fn set_interval(
+        &mut self,
+        id_param: f32,
+        interval_param: f32,
+        now_us: u64,
+    ) -> IntervalOutcome {
         if !(id_param.is_finite() && interval_param.is_finite())
             || id_param < 0.0
             || interval_param < -1.0
@@ -199,8 +204,12 @@ impl Streams {
             }
             (_, r) => r,
         };
+        // PX4 sends at the next opportunity; ArduPilot keeps the message's last send time,
+        // so the new interval counts from it.
         stream.next_due_us = now_us;
-        stream.last_sent_us = None;
+        if autopilot == Autopilot::Px4 {
+            stream.last_sent_us = None;
+        }
         IntervalOutcome::Accepted(stream.interval_us)
     }
 
@@ -240,7 +249,7 @@ impl Streams {
                     }
                     Autopilot::ArduPilot => match s.last_sent_us {
                         None => true,
-                        Some(last) => (now_us - last) / 1000 >= interval_us / 1000,
+                        Some(last) => now_us.saturating_sub(last) / 1000 >= interval_us / 1000,
                     },
                 }
             };
@@ -270,7 +279,10 @@ mod tests {
         let id = apm::HIGHRES_IMU_DATA::ID;
         assert_eq!(count(&mut s, id, 10), 1000);
         // 30 Hz (33,333 µs) on 100 Hz instants: 300 messages in 10 s, ±1.
-        assert_eq!(s.set_interval(id as f32, 33_333.0, 0), IntervalOutcome::Accepted(Some(33_333)));
+        assert_eq!(
+            s.set_interval(id as f32, 33_333.0, 0),
+            IntervalOutcome::Accepted(Some(33_333))
+        );
         let n = count(&mut s, id, 10);
         assert!((299..=301).contains(&n), "{n}");
         // 200 Hz requested: the vehicle cannot exceed its 100 Hz sensor.
@@ -278,7 +290,10 @@ mod tests {
         assert_eq!(count(&mut s, id, 10), 1000);
         s.set_interval(id as f32, -1.0, 0);
         assert_eq!(count(&mut s, id, 1), 0);
-        assert_eq!(s.set_interval(id as f32, 0.0, 0), IntervalOutcome::Accepted(Some(10_000)));
+        assert_eq!(
+            s.set_interval(id as f32, 0.0, 0),
+            IntervalOutcome::Accepted(Some(10_000))
+        );
         assert_eq!(s.set_interval(9999.0, 1e4, 0), IntervalOutcome::Unsupported);
         assert_eq!(s.set_interval(f32::NAN, 1e4, 0), IntervalOutcome::Denied);
     }
@@ -287,15 +302,25 @@ mod tests {
     fn ardupilot_caps_at_its_loop_and_delivers_at_most_25_hz() {
         let mut s = Streams::new(Autopilot::ArduPilot);
         let id = apm::RAW_IMU_DATA::ID;
-        assert_eq!(count(&mut s, id, 10), 250);
+        // Messages of `id` over 10 s of vehicle time from `t0_s`.
+        let count_from = |s: &mut Streams, t0_s: u64| {
+            (t0_s * 100..(t0_s + 10) * 100)
+                .map(|k| k * 10_000)
+                .filter(|&t| s.due(t, |_| true).contains(&id))
+                .count()
+        };
+        assert_eq!(count_from(&mut s, 0), 250);
         // 100 Hz requested → clamped to 25 ms, which the 20 ms loop runs at 25 Hz.
-        assert_eq!(s.set_interval(id as f32, 10_000.0, 0), IntervalOutcome::Accepted(Some(25_000)));
-        assert_eq!(count(&mut s, id, 10), 250);
+        assert_eq!(
+            s.set_interval(id as f32, 10_000.0, 10_000_000),
+            IntervalOutcome::Accepted(Some(25_000))
+        );
+        assert_eq!(count_from(&mut s, 10), 250);
         // 10 Hz is met exactly; 30 Hz (33 ms) becomes 40 ms on the loop: 25 Hz.
-        s.set_interval(id as f32, 100_000.0, 0);
-        assert_eq!(count(&mut s, id, 10), 100);
-        s.set_interval(id as f32, 33_333.0, 0);
-        assert_eq!(count(&mut s, id, 10), 250);
+        s.set_interval(id as f32, 100_000.0, 20_000_000);
+        assert_eq!(count_from(&mut s, 20), 100);
+        s.set_interval(id as f32, 33_333.0, 30_000_000);
+        assert_eq!(count_from(&mut s, 30), 250);
         assert_eq!(s.interval_us(apm::HIGHRES_IMU_DATA::ID), None);
     }
 

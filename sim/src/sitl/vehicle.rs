@@ -368,7 +368,8 @@ impl Vehicle {
             self.gnss = Some(GnssReport::NoFix { t_us });
             self.gnss_fresh = true;
         }
-        self.truth_history.push_back((t_us, self.flight.truth().pos));
+        self.truth_history
+            .push_back((t_us, self.flight.truth().pos));
         while self
             .truth_history
             .front()
@@ -434,12 +435,14 @@ impl Vehicle {
     fn queue_origin(&mut self) {
         if let Some(o) = self.origin() {
             let t_us = self.t_us();
-            self.queue(apm::MavMessage::GPS_GLOBAL_ORIGIN(apm::GPS_GLOBAL_ORIGIN_DATA {
-                latitude: convert::deg_e7(o.lat_rad),
-                longitude: convert::deg_e7(o.lon_rad),
-                altitude: convert::mm(o.h_m),
-                time_usec: t_us,
-            }));
+            self.queue(apm::MavMessage::GPS_GLOBAL_ORIGIN(
+                apm::GPS_GLOBAL_ORIGIN_DATA {
+                    latitude: convert::deg_e7(o.lat_rad),
+                    longitude: convert::deg_e7(o.lon_rad),
+                    altitude: convert::mm(o.h_m),
+                    time_usec: t_us,
+                },
+            ));
         }
     }
 
@@ -552,8 +555,11 @@ impl Vehicle {
             apm::VFR_HUD_DATA::ID => {
                 let est = self.flight.estimate();
                 let air = air?;
-                let ias_mps =
-                    convert::cas_mps(convert::impact_pressure_pa(air.tas_mps, air.p_pa, air.temp_k));
+                let ias_mps = convert::cas_mps(convert::impact_pressure_pa(
+                    air.tas_mps,
+                    air.p_pa,
+                    air.temp_k,
+                ));
                 let yaw_deg = so3::euler_zyx(&est.q_nb).x.to_degrees().rem_euclid(360.0);
                 let throttle = self.flight.truth_sample().controls.throttle;
                 apm::MavMessage::VFR_HUD(apm::VFR_HUD_DATA {
@@ -646,9 +652,11 @@ impl Vehicle {
             lon_rad: convert::rad_from_deg_e7(o.longitude),
             h_m: f64::from(o.altitude) * 1e-3,
         };
-        if pos.lat_rad.abs() > std::f64::consts::FRAC_PI_2 || pos.lon_rad.abs() > std::f64::consts::PI
+        if pos.lat_rad.abs() > std::f64::consts::FRAC_PI_2
+            || pos.lon_rad.abs() > std::f64::consts::PI
         {
-            self.notices.push("SET_GPS_GLOBAL_ORIGIN out of range, ignored".to_owned());
+            self.notices
+                .push("SET_GPS_GLOBAL_ORIGIN out of range, ignored".to_owned());
             return;
         }
         // ArduPilot only takes an origin when it has none; PX4 resets its origin.
@@ -767,13 +775,12 @@ impl Vehicle {
         let now_us = self.t_us();
         // A stamp on the vehicle clock is within the truth history and not ahead of now
         // (one 10 ms sensor period of slack for rounding).
-        let (t_valid_us, basis) = if fix.stamp_us <= now_us + 10_000
-            && fix.stamp_us + TRUTH_HISTORY_US >= now_us
-        {
-            (fix.stamp_us.min(now_us), TimeBasis::Stamp)
-        } else {
-            (now_us, TimeBasis::Arrival)
-        };
+        let (t_valid_us, basis) =
+            if fix.stamp_us <= now_us + 10_000 && fix.stamp_us + TRUTH_HISTORY_US >= now_us {
+                (fix.stamp_us.min(now_us), TimeBasis::Stamp)
+            } else {
+                (now_us, TimeBasis::Arrival)
+            };
         let truth = self.truth_at(t_valid_us);
         let d = wgs84::ned_difference_m(&truth, &fix.pos);
         self.estimate_arrivals.push_back(now_us);
