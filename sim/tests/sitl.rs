@@ -201,7 +201,7 @@ async fn px4_vehicle_streams_converts_answers_and_loses_gnss() {
                 conn.send(&CLIENT, &cmd).await.unwrap();
             }
         }
-        apm::MavMessage::TIMESYNC(d) => {
+        apm::MavMessage::TIMESYNC(d) if d.tc1 != 0 => {
             let last_imu = imu.last().map_or(0, |(_, m)| m.time_usec);
             timesync_reply = Some((*h, d.clone(), last_imu));
         }
@@ -418,6 +418,11 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
     let mut sent_stamped = false;
     let mut last_sent: Option<Geodetic> = None;
     let mut gpi_vs_sent = Vec::new();
+    // The client's own clock: wall time since the test started plus ~58 days, in µs.
+    let epoch = std::time::Instant::now();
+    let client_us = move || epoch.elapsed().as_micros() as u64 + 5_000_000_000_000;
+    let mut companion_stamped: Option<(u64, u64, apm::MavMessage)> = None;
+    let mut companion_sent_for: Option<u64> = None;
     let odometry = |t_us: u64, ned: [f64; 3], frame| {
         apm::MavMessage::ODOMETRY(apm::ODOMETRY_DATA {
             time_usec: t_us,
@@ -433,6 +438,15 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
         })
     };
     let summary = pump(&mut rx, &mut run, async |_, _, m| match m {
+        apm::MavMessage::TIMESYNC(d) if d.tc1 == 0 => {
+            let reply = apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
+                tc1: (client_us() * 1000) as i64,
+                ts1: d.ts1,
+                target_system: 1,
+                target_component: 1,
+            });
+            conn.send(&CLIENT, &reply).await.unwrap();
+        }
         apm::MavMessage::GPS_GLOBAL_ORIGIN(o) => {
             origin = Some(MapProjection::new(&Geodetic {
                 lat_rad: sitl::convert::rad_from_deg_e7(o.latitude),
@@ -445,6 +459,23 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
             let t = d.time_usec;
             let truth = tw.truth[&t];
             let ned = proj.project(&truth);
+            // Stamped on the client's clock when the IMU sample of 3.0 s arrives, sent 0.3 s
+            // of vehicle time later: only the TIMESYNC map recovers its time of validity.
+            if t == 3_000_000 {
+                let m = odometry(
+                    client_us(),
+                    [ned[0] + 30.0, ned[1] + 40.0, ned[2]],
+                    apm::MavFrame::MAV_FRAME_LOCAL_NED,
+                );
+                companion_stamped = Some((t, t + 300_000, m));
+            }
+            if let Some((t_valid, send_at, m)) = companion_stamped.clone()
+                && t >= send_at
+            {
+                conn.send(&CLIENT, &m).await.unwrap();
+                companion_sent_for = Some(t_valid);
+                companion_stamped = None;
+            }
             if t >= 2_500_000 && !sent_stamped {
                 // Before the loss (t < 4 s): 30 m north, 40 m east of the truth, stamped on
                 // the vehicle clock; plus refused ones (bad frame, NaN) and one on a foreign clock.
@@ -518,8 +549,22 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
     assert!((ver - 5.0).abs() < 0.01, "{ver}");
     assert_eq!(
         rows[1][3], "arrival",
-        "a stamp on another clock falls back to arrival time"
+        "a stamp on no known clock falls back to arrival time"
     );
+    // The companion-clock stamp maps within a few ms of vehicle time (a few cm/ms at
+    // ~50 m/s); taken at arrival it would be 0.3 s (~15 m) off.
+    let t_valid = companion_sent_for.unwrap();
+    let row = &rows[2];
+    assert_eq!(row[3], "timesync");
+    let t_mapped: u64 = row[2].parse().unwrap();
+    assert!(
+        t_mapped.abs_diff(t_valid) < 20_000,
+        "{t_mapped} vs {t_valid}"
+    );
+    let hor: f64 = row[13].parse().unwrap();
+    let want = expected(t_valid, [30.0, 40.0, 0.0]);
+    assert!((hor - want).abs() < 1.5, "{hor} vs {want}");
+    assert!(summary.vehicle.timesync_pairs >= 20, "{summary:?}");
     assert_eq!(summary.vehicle.estimates_refused, 2);
     // After the loss the estimates arrive at 20 Hz and the vehicle flies on them: the position
     // it reports is the one sent (carried by at most 50 ms of its velocity), ~200 m from its INS.

@@ -136,6 +136,7 @@ fn csv_row(r: &EstimateRow, warmup_us: u64) -> String {
         r.t_valid_us,
         match r.basis {
             TimeBasis::Stamp => "stamp",
+            TimeBasis::Timesync => "timesync",
             TimeBasis::Arrival => "arrival",
         },
         r.kind.name(),

@@ -7,12 +7,14 @@
 //! - [`streams`]: PX4-like and ArduPilot-like message scheduling and interval requests.
 //! - [`convert`]: SI ↔ MAVLink units.
 //! - [`frames`]: the camera frame stream server.
+//! - [`timesync`]: the vehicle's TIMESYNC requests and its map of the companion's clock.
 //! - [`link`]: the async driver: MAVLink connection, real-time pacing, `sitl.csv`.
 
 pub mod convert;
 pub mod frames;
 pub mod link;
 pub mod streams;
+pub mod timesync;
 pub mod vehicle;
 
 pub use link::{FramesListen, Progress, SitlError, SitlOptions, SitlSummary, run};

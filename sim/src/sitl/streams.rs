@@ -40,8 +40,9 @@ pub const ARDUPILOT_LOOP_US: u64 = 20_000;
 pub const ARDUPILOT_MIN_INTERVAL_MS: u64 = ARDUPILOT_LOOP_US / 800;
 
 /// The messages the vehicle can stream, by id.
-pub const STREAMABLE: [u32; 12] = [
+pub const STREAMABLE: [u32; 13] = [
     apm::HEARTBEAT_DATA::ID,
+    apm::TIMESYNC_DATA::ID,
     apm::SYSTEM_TIME_DATA::ID,
     apm::HIGHRES_IMU_DATA::ID,
     apm::SCALED_IMU_DATA::ID,
@@ -64,6 +65,8 @@ pub fn default_interval_us(autopilot: Autopilot, id: u32) -> Option<u64> {
         // air data and vanes at the simulated air-data rate so that the companion's INS gets
         // what the offline INS gets; GPS_RAW_INT as produced (1 Hz receiver).
         (Autopilot::Px4, apm::HIGHRES_IMU_DATA::ID) => hz(100),
+        // PX4 sends TIMESYNC requests at 10 Hz on onboard links.
+        (Autopilot::Px4, apm::TIMESYNC_DATA::ID) => hz(10),
         (Autopilot::Px4, apm::AIRSPEED_DATA::ID | apm::AOA_SSA_DATA::ID) => hz(100),
         (Autopilot::Px4, apm::SCALED_PRESSURE_DATA::ID) => hz(1),
         (Autopilot::Px4, apm::ATTITUDE_DATA::ID | apm::GLOBAL_POSITION_INT_DATA::ID) => hz(50),

@@ -24,6 +24,7 @@ use mavlink::{MavHeader, MessageData};
 
 use super::convert::{self, ExternalFix, ExternalFixError};
 use super::streams::{Autopilot, ImuAverager, IntervalOutcome, Streams};
+use super::timesync::ClockMap;
 use crate::flight::{Flight, FlightError, FlightObserver, FlightSetup, PositionAid};
 
 /// Satellites the simulated receiver reports with a fix (it has no constellation model).
@@ -77,6 +78,8 @@ pub enum GnssReport {
 pub enum TimeBasis {
     /// Its timestamp is on the vehicle's boot clock (within the last 10 s, not ahead).
     Stamp,
+    /// Its timestamp is on the companion's clock, mapped through the TIMESYNC exchanges.
+    Timesync,
     /// Its timestamp is on another clock: the arrival time is used.
     Arrival,
 }
@@ -141,6 +144,8 @@ pub struct VehicleStats {
     pub received: u64,
     /// TIMESYNC requests answered.
     pub timesync_answered: u64,
+    /// Answers to the vehicle's TIMESYNC requests used for the companion clock map.
+    pub timesync_pairs: u64,
     /// COMMAND_LONG handled (acknowledged).
     pub commands: u64,
     /// Usable companion estimates.
@@ -191,6 +196,7 @@ pub struct Vehicle {
     truth_history: VecDeque<(u64, Geodetic)>,
     estimate_arrivals: VecDeque<u64>,
     aided: bool,
+    clock_map: ClockMap,
     outbox: Vec<apm::MavMessage>,
     frames: Vec<Frame>,
     rows: Vec<EstimateRow>,
@@ -237,6 +243,7 @@ impl Vehicle {
             truth_history: VecDeque::with_capacity(1100),
             estimate_arrivals: VecDeque::with_capacity(256),
             aided: false,
+            clock_map: ClockMap::default(),
             outbox: Vec::with_capacity(64),
             frames: Vec::new(),
             rows: Vec::new(),
@@ -453,6 +460,13 @@ impl Vehicle {
         let mag = self.last_mag;
         let msg = match id {
             apm::HEARTBEAT_DATA::ID => apm::MavMessage::HEARTBEAT(self.heartbeat()),
+            // A TIMESYNC request (broadcast), as PX4 sends them.
+            apm::TIMESYNC_DATA::ID => apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
+                tc1: 0,
+                ts1: i64::try_from(t_us.saturating_mul(1000)).unwrap_or(i64::MAX),
+                target_system: 0,
+                target_component: 0,
+            }),
             apm::SYSTEM_TIME_DATA::ID => apm::MavMessage::SYSTEM_TIME(apm::SYSTEM_TIME_DATA {
                 time_unix_usec: if self.unix_time_valid {
                     self.boot_unix_us + t_us
@@ -619,6 +633,13 @@ impl Vehicle {
                     target_component: header.component_id,
                 }));
             }
+            apm::MavMessage::TIMESYNC(m)
+                if m.target_system == 0 || m.target_system == self.cfg.system_id =>
+            {
+                // An answer to one of our requests.
+                self.clock_map.add(m.ts1, m.tc1, now_us);
+                self.stats.timesync_pairs = self.clock_map.used;
+            }
             apm::MavMessage::COMMAND_LONG(c)
                 if c.target_system == 0 || c.target_system == self.cfg.system_id =>
             {
@@ -774,13 +795,19 @@ impl Vehicle {
         };
         let now_us = self.t_us();
         // A stamp on the vehicle clock is within the truth history and not ahead of now
-        // (one 10 ms sensor period of slack for rounding).
-        let (t_valid_us, basis) =
-            if fix.stamp_us <= now_us + 10_000 && fix.stamp_us + TRUTH_HISTORY_US >= now_us {
-                (fix.stamp_us.min(now_us), TimeBasis::Stamp)
-            } else {
-                (now_us, TimeBasis::Arrival)
-            };
+        // (one 10 ms sensor period of slack for rounding); else one on the companion's clock
+        // maps there through TIMESYNC; else the arrival time is all there is.
+        let plausible = |t: u64| t <= now_us + 10_000 && t + TRUTH_HISTORY_US >= now_us;
+        let mapped = self
+            .clock_map
+            .to_vehicle_us(fix.stamp_us)
+            .filter(|v| v.is_finite() && *v >= 0.0)
+            .map(|v| v.round() as u64);
+        let (t_valid_us, basis) = match mapped {
+            _ if plausible(fix.stamp_us) => (fix.stamp_us.min(now_us), TimeBasis::Stamp),
+            Some(v) if plausible(v) => (v.min(now_us), TimeBasis::Timesync),
+            _ => (now_us, TimeBasis::Arrival),
+        };
         let truth = self.truth_at(t_valid_us);
         let d = wgs84::ned_difference_m(&truth, &fix.pos);
         self.estimate_arrivals.push_back(now_us);
