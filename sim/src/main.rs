@@ -640,14 +640,16 @@ fn sitl(args: &SitlArgs) -> Result<()> {
     bar.finish();
     let v = &summary.vehicle;
     println!(
-        "flew {:.0} s in {:.1} s wall (max lag {:.2} s); sent {} messages ({} dropped, {} errors), received {}",
+        "flew {:.0} s in {:.1} s wall (max lag {:.2} s); sent {} messages ({} dropped, {} errors), received {}; TIMESYNC: {} requests answered, {} answers to ours",
         summary.mission_s,
         summary.wall_s,
         summary.max_lag_s,
         summary.sent,
         summary.send_dropped,
         summary.send_errors,
-        v.received
+        v.received,
+        v.timesync_answered,
+        v.timesync_pairs
     );
     println!(
         "daemon estimates: {} used, {} refused, mean rate {}; flew on the daemon's position {:.0} % of the time after GNSS loss",
