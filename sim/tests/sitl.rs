@@ -590,7 +590,7 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn frame_stream_serves_late_and_reconnecting_clients_on_the_imu_clock() {
-    let mut setup = short_setup(1.0, 100.0, 4.0);
+    let mut setup = short_setup(1.0, 100.0, 6.0);
     let zone: ianav_sim::terrain::Zone = "fm".parse().unwrap();
     let start_pt = zone.start();
     setup.scenario.start.lat_deg = start_pt.lat_deg;
@@ -624,7 +624,9 @@ async fn frame_stream_serves_late_and_reconnecting_clients_on_the_imu_clock() {
                 got.push((std::time::Instant::now(), h, f.pixels.len()));
             }
         }
-        got
+        // A third client that never reads: the socket buffers fill, then frames are dropped.
+        let stalled = std::net::TcpStream::connect(frames_addr).unwrap();
+        (got, stalled)
     });
     let mut imu_times = Vec::new();
     let summary = pump(&mut rx, &mut run, async |_, _, m| {
@@ -633,8 +635,11 @@ async fn frame_stream_serves_late_and_reconnecting_clients_on_the_imu_clock() {
         }
     })
     .await;
-    let frames = reader.await.unwrap();
+    let (frames, _stalled) = reader.await.unwrap();
     assert_eq!(frames.len(), 6);
+    // The stalled client cost frames, never the flight: the run reached its end.
+    assert!(summary.frames_dropped > 0, "{summary:?}");
+    assert!(summary.mission_s >= 6.0);
     assert!(summary.frames_without_client >= 3, "{summary:?}");
     assert!(summary.vehicle.frames >= 40);
     for (t_rx, h, n) in &frames {
@@ -717,4 +722,115 @@ async fn the_cli_flies_a_short_sitl_run_and_writes_its_log() {
     ] {
         assert!(text.contains(opt), "{opt} missing from --help");
     }
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn malformed_and_hostile_input_is_refused_or_skipped_without_stopping_the_vehicle() {
+    // The vehicle listens (udpin) and the test talks to it from a raw socket, so that it can
+    // send bytes no MAVLink library would produce.
+    let port = std::net::UdpSocket::bind("127.0.0.1:0")
+        .unwrap()
+        .local_addr()
+        .unwrap()
+        .port();
+    let setup = short_setup(1.0, 1.0, 3.0);
+    let options = SitlOptions {
+        connect: format!("udpin:127.0.0.1:{port}"),
+        vehicle: VehicleConfig::default(),
+        speed: 2.0,
+        frames: None,
+        out_dir: None,
+    };
+    let run = tokio::spawn(async move { sitl::run(&setup, SEED, options, |_, _| {}).await });
+    let sock = tokio::net::UdpSocket::bind("127.0.0.1:0").await.unwrap();
+    sock.connect(("127.0.0.1", port)).await.unwrap();
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let frame = |msg: &apm::MavMessage| {
+        let mut v = Vec::new();
+        mavlink::write_v2_msg(&mut v, CLIENT, msg).unwrap();
+        v
+    };
+    let odo = |x: f32| {
+        apm::MavMessage::ODOMETRY(apm::ODOMETRY_DATA {
+            x,
+            frame_id: apm::MavFrame::MAV_FRAME_LOCAL_NED,
+            ..Default::default()
+        })
+    };
+    let timesync = apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
+        tc1: 0,
+        ts1: 1,
+        target_system: 1,
+        target_component: 1,
+    });
+    let mut garbage: Vec<Vec<u8>> = vec![
+        (0..=255).collect(),
+        vec![0xFD; 300],
+        vec![0xFE, 9, 0, 1, 1, 0],
+    ];
+    let good = frame(&timesync);
+    garbage.push(good[..good.len() / 2].to_vec()); // truncated
+    let mut bad_crc = good.clone();
+    let n = bad_crc.len();
+    bad_crc[n - 1] ^= 0xFF;
+    garbage.push(bad_crc);
+    let mut v1 = Vec::new();
+    mavlink::write_v1_msg(&mut v1, CLIENT, &timesync).unwrap();
+    garbage.push(v1);
+    for g in &garbage {
+        sock.send(g).await.unwrap();
+    }
+    // Well-formed messages with absurd content: refused, never a panic.
+    let hostile = [
+        odo(f32::INFINITY),
+        odo(1e30),
+        apm::MavMessage::GPS_INPUT(apm::GPS_INPUT_DATA {
+            lat: i32::MAX,
+            lon: i32::MIN,
+            alt: f32::NAN,
+            fix_type: apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
+            ..Default::default()
+        }),
+        apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            param1: f32::NAN,
+            param2: -5.0,
+            command: apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL,
+            ..Default::default()
+        }),
+        apm::MavMessage::COMMAND_LONG(apm::COMMAND_LONG_DATA {
+            param1: -3.0,
+            command: apm::MavCmd::MAV_CMD_REQUEST_MESSAGE,
+            ..Default::default()
+        }),
+        timesync.clone(),
+    ];
+    for m in &hostile {
+        sock.send(&frame(m)).await.unwrap();
+    }
+    // The vehicle keeps answering: TIMESYNC replies and COMMAND_ACKs come back.
+    let mut buf = vec![0_u8; 65_536];
+    let mut acks = 0;
+    let mut timesync_replies = 0;
+    while let Ok(Ok(n)) = tokio::time::timeout(Duration::from_secs(3), sock.recv(&mut buf)).await {
+        let mut r = mavlink::MavlinkReader::new(&buf[..n]);
+        while let Ok((_, m)) = r.read_message::<apm::MavMessage>(mavlink::MavlinkVersion::V2) {
+            match m {
+                apm::MavMessage::COMMAND_ACK(a) => {
+                    acks += 1;
+                    assert_eq!(a.result, apm::MavResult::MAV_RESULT_DENIED);
+                }
+                apm::MavMessage::TIMESYNC(t) if t.tc1 != 0 => timesync_replies += 1,
+                _ => {}
+            }
+        }
+        if acks == 2 && timesync_replies >= 1 {
+            break;
+        }
+    }
+    assert_eq!(acks, 2);
+    assert!(timesync_replies >= 1);
+    let summary = run.await.unwrap().unwrap();
+    assert_eq!(summary.vehicle.estimates, 0);
+    assert_eq!(summary.vehicle.estimates_refused, 3);
+    assert!(summary.mission_s >= 3.0);
 }
