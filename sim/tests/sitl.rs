@@ -178,7 +178,9 @@ async fn px4_vehicle_streams_converts_answers_and_loses_gnss() {
     let mut timesync_reply = None;
     let mut interval_sent_at: Option<u64> = None;
     let mut acks = Vec::new();
+    let mut order: Vec<(u32, u64)> = Vec::new();
     let summary = pump(&mut rx, &mut run, async |t, h, m| match m {
+        apm::MavMessage::AOA_SSA(d) => order.push((apm::AOA_SSA_DATA::ID, d.time_usec)),
         apm::MavMessage::HEARTBEAT(hb) => {
             heartbeats.push((*h, hb.clone()));
             if timesync_sent.is_none() {
@@ -194,6 +196,7 @@ async fn px4_vehicle_streams_converts_answers_and_loses_gnss() {
             }
         }
         apm::MavMessage::HIGHRES_IMU(d) => {
+            order.push((apm::HIGHRES_IMU_DATA::ID, d.time_usec));
             imu.push((t, d.clone()));
             if d.time_usec >= 6_000_000 && interval_sent_at.is_none() {
                 interval_sent_at = Some(d.time_usec);
@@ -209,7 +212,10 @@ async fn px4_vehicle_streams_converts_answers_and_loses_gnss() {
             let last_imu = imu.last().map_or(0, |(_, m)| m.time_usec);
             acks.push((a.clone(), last_imu));
         }
-        apm::MavMessage::GPS_RAW_INT(g) => gps.push(g.clone()),
+        apm::MavMessage::GPS_RAW_INT(g) => {
+            order.push((apm::GPS_RAW_INT_DATA::ID, g.time_usec));
+            gps.push(g.clone());
+        }
         _ => {}
     })
     .await;
@@ -248,6 +254,25 @@ async fn px4_vehicle_streams_converts_answers_and_loses_gnss() {
         (wall_rate / expected - 1.0).abs() < 0.1,
         "HIGHRES_IMU at {wall_rate:.0} /s wall, expected {expected:.0}"
     );
+
+    // Within an instant, aiding data (vanes, GNSS) arrive before the IMU sample, the order
+    // in which the simulator's INS fuses them.
+    let imu_index: BTreeMap<u64, usize> = order
+        .iter()
+        .enumerate()
+        .filter(|(_, (id, _))| *id == apm::HIGHRES_IMU_DATA::ID)
+        .map(|(i, &(_, t))| (t, i))
+        .collect();
+    let mut checked = 0;
+    for (i, &(id, t)) in order.iter().enumerate() {
+        if id != apm::HIGHRES_IMU_DATA::ID
+            && let Some(&j) = imu_index.get(&t)
+        {
+            assert!(i < j, "message {id} at {t} µs after its IMU sample");
+            checked += 1;
+        }
+    }
+    assert!(checked > 500, "{checked}");
 
     // SET_MESSAGE_INTERVAL: acknowledged ACCEPTED, then 25 Hz (40 ms) from shortly after.
     let (ack, acked_at_us) = acks

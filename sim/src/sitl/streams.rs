@@ -39,18 +39,20 @@ pub const ARDUPILOT_LOOP_US: u64 = 20_000;
 /// ArduPilot's shortest message interval, ms: 80 % of the loop rate.
 pub const ARDUPILOT_MIN_INTERVAL_MS: u64 = ARDUPILOT_LOOP_US / 800;
 
-/// The messages the vehicle can stream, by id.
+/// The messages the vehicle can stream, by id, in the order they leave within one sensor
+/// instant: aiding data (GNSS, air data, vanes) before the IMU sample of the same instant, the
+/// order in which the simulator's own INS consumes them (`flight.rs`, `sample_sensors`).
 pub const STREAMABLE: [u32; 13] = [
     apm::HEARTBEAT_DATA::ID,
     apm::TIMESYNC_DATA::ID,
     apm::SYSTEM_TIME_DATA::ID,
-    apm::HIGHRES_IMU_DATA::ID,
-    apm::SCALED_IMU_DATA::ID,
-    apm::RAW_IMU_DATA::ID,
+    apm::GPS_RAW_INT_DATA::ID,
     apm::SCALED_PRESSURE_DATA::ID,
     apm::AIRSPEED_DATA::ID,
     apm::AOA_SSA_DATA::ID,
-    apm::GPS_RAW_INT_DATA::ID,
+    apm::HIGHRES_IMU_DATA::ID,
+    apm::SCALED_IMU_DATA::ID,
+    apm::RAW_IMU_DATA::ID,
     apm::ATTITUDE_DATA::ID,
     apm::GLOBAL_POSITION_INT_DATA::ID,
     apm::VFR_HUD_DATA::ID,

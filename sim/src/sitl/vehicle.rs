@@ -197,6 +197,8 @@ pub struct Vehicle {
     estimate_arrivals: VecDeque<u64>,
     aided: bool,
     clock_map: ClockMap,
+    /// Components whose HEARTBEAT has been seen (a few; for the log).
+    peers: Vec<(u32, u8)>,
     outbox: Vec<apm::MavMessage>,
     frames: Vec<Frame>,
     rows: Vec<EstimateRow>,
@@ -244,6 +246,7 @@ impl Vehicle {
             estimate_arrivals: VecDeque::with_capacity(256),
             aided: false,
             clock_map: ClockMap::default(),
+            peers: Vec::new(),
             outbox: Vec::with_capacity(64),
             frames: Vec::new(),
             rows: Vec::new(),
@@ -624,6 +627,20 @@ impl Vehicle {
         self.stats.received += 1;
         let now_us = self.t_us();
         match msg {
+            apm::MavMessage::HEARTBEAT(hb) => {
+                let id = (header.system_id, header.component_id);
+                if !self.peers.contains(&id) && self.peers.len() < 16 {
+                    self.peers.push(id);
+                    self.notices.push(format!(
+                        "t = {:.2} s: HEARTBEAT from {}/{} ({:?}, {:?})",
+                        self.flight.mission_time_s(),
+                        id.0,
+                        id.1,
+                        hb.mavtype,
+                        hb.system_status
+                    ));
+                }
+            }
             apm::MavMessage::TIMESYNC(m) if m.tc1 == 0 => {
                 self.stats.timesync_answered += 1;
                 self.queue(apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
