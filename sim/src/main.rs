@@ -611,15 +611,28 @@ fn sitl(args: &SitlArgs) -> Result<()> {
         ProgressStyle::with_template("[{elapsed_precise}] {wide_bar} {pos}/{len} s {msg}")
             .unwrap_or_else(|_| ProgressStyle::default_bar()),
     );
+    let pace = if args.speed == 0.0 {
+        "as fast as possible".to_owned()
+    } else {
+        format!("at {}× real time", args.speed)
+    };
     println!(
-        "sitl: scenario {} seed {} as {:?} on {} at {}× real time",
-        args.fly.setup.scenario, args.fly.seed, args.autopilot, args.connect, args.speed
+        "sitl: scenario {} seed {} as {:?} on {} {pace}",
+        args.fly.setup.scenario, args.fly.seed, args.autopilot, args.connect
     );
+    // Without a terminal the bar is hidden (and drops its log lines): print plain lines,
+    // a status line every 10 s of mission time.
+    let plain = bar.is_hidden();
+    let mut next_status_s = 0.0;
     let summary = runtime.block_on(sitl::run(&setup, args.fly.seed, options, |p, notices| {
         bar.set_length(p.end_s.max(0.0).ceil() as u64);
         bar.set_position(p.t_s.max(0.0) as u64);
         for n in notices {
-            bar.println(n);
+            if plain {
+                println!("{n}");
+            } else {
+                bar.println(n);
+            }
         }
         let err = p.hor_err_m.map_or_else(
             || "no estimate yet".to_owned(),
@@ -630,12 +643,17 @@ fn sitl(args: &SitlArgs) -> Result<()> {
         } else {
             String::new()
         };
-        bar.set_message(format!(
+        let status = format!(
             "t {:.0} s, {err}, {:.0} Hz, flying on {}{lag}",
             p.t_s,
             p.estimate_rate_hz,
             if p.aided { "daemon" } else { "own INS" }
-        ));
+        );
+        if plain && p.t_s >= next_status_s {
+            println!("{status}");
+            next_status_s = (p.t_s / 10.0).floor() * 10.0 + 10.0;
+        }
+        bar.set_message(status);
     }))?;
     bar.finish();
     let v = &summary.vehicle;

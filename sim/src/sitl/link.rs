@@ -5,8 +5,10 @@
 //! of accumulating drift. Pacing decides only *when* messages leave; the flight is the same
 //! for the same seed until the companion's estimates start steering it after GNSS loss.
 //!
-//! The flight loop never waits on a peer: outgoing messages go through a bounded queue with
-//! `try_send` (a full queue drops and counts), camera frames likewise ([`super::frames`]).
+//! In real time (`speed` > 0) the flight loop never waits on a peer: outgoing messages go
+//! through a bounded queue with `try_send` (a full queue drops and counts), camera frames
+//! likewise ([`super::frames`]). As fast as possible (`speed` = 0) it waits for the queue
+//! instead, so that the link, not the queue, sets the pace and no message is lost.
 
 use std::io::Write;
 use std::path::PathBuf;
@@ -60,7 +62,7 @@ pub enum SitlError {
     #[error(transparent)]
     Flight(#[from] FlightError),
     /// The MAVLink link or the frame listener could not be opened.
-    #[error("{what}: {source}")]
+    #[error("{what}")]
     Io {
         /// What failed.
         what: String,
@@ -271,7 +273,12 @@ pub async fn run(
             break;
         }
         for msg in vehicle.take_outbox() {
-            if out_tx.try_send(msg).is_err() {
+            if options.speed == 0.0 {
+                // As fast as possible: the link sets the pace, nothing is dropped.
+                if out_tx.send(msg).await.is_err() {
+                    send_dropped += 1;
+                }
+            } else if out_tx.try_send(msg).is_err() {
                 send_dropped += 1;
             }
         }
