@@ -517,6 +517,25 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
                 conn.send(&CLIENT, &m).await.unwrap();
                 let m = odometry(3_600_000_000_000, ned, apm::MavFrame::MAV_FRAME_LOCAL_NED);
                 conn.send(&CLIENT, &m).await.unwrap();
+                // The same instant as VISION_POSITION_ESTIMATE and GPS_INPUT, on the truth.
+                let vpe =
+                    apm::MavMessage::VISION_POSITION_ESTIMATE(apm::VISION_POSITION_ESTIMATE_DATA {
+                        usec: t,
+                        x: ned[0] as f32,
+                        y: ned[1] as f32,
+                        z: ned[2] as f32,
+                        ..Default::default()
+                    });
+                conn.send(&CLIENT, &vpe).await.unwrap();
+                let gps = apm::MavMessage::GPS_INPUT(apm::GPS_INPUT_DATA {
+                    time_usec: t,
+                    lat: sitl::convert::deg_e7(truth.lat_rad),
+                    lon: sitl::convert::deg_e7(truth.lon_rad),
+                    alt: truth.h_m as f32,
+                    fix_type: apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
+                    ..Default::default()
+                });
+                conn.send(&CLIENT, &gps).await.unwrap();
             }
             // After the loss, from 4.5 s to 7 s: positions 200 m east of the (twin) truth at
             // 20 Hz; the vehicle must report them as its own position.
@@ -578,8 +597,18 @@ async fn companion_odometry_is_logged_against_truth_and_flown_on_after_gnss_loss
     );
     // The companion-clock stamp maps within a few ms of vehicle time (a few cm/ms at
     // ~50 m/s); taken at arrival it would be 0.3 s (~15 m) off.
+    for (row, name) in [
+        (&rows[2], "VISION_POSITION_ESTIMATE"),
+        (&rows[3], "GPS_INPUT"),
+    ] {
+        assert_eq!((row[3], row[4]), ("stamp", name));
+        // On the truth: f32 metres and degE7 (≤ 0.8 cm) quantisation only.
+        let hor: f64 = row[13].parse().unwrap();
+        let ver: f64 = row[14].parse().unwrap();
+        assert!(hor < 0.01 && ver.abs() < 0.01, "{name}: {hor} {ver}");
+    }
     let t_valid = companion_sent_for.unwrap();
-    let row = &rows[2];
+    let row = rows.iter().find(|r| r[3] == "timesync").unwrap();
     assert_eq!(row[3], "timesync");
     let t_mapped: u64 = row[2].parse().unwrap();
     assert!(
