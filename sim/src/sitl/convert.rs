@@ -8,7 +8,7 @@
 //! degrees. The simulated world has no geoid model: mean sea level is the WGS84 ellipsoid
 //! (undulation 0), so `alt` (MSL) and `alt_ellipsoid` carry the same height.
 
-use ianav::env::atmosphere::{self, G0_MPS2, KAPPA, P0_PA, R_JPKGK, T0_K};
+use ianav::env::atmosphere::{self, G0_MPS2, KAPPA, P0_PA, T0_K};
 use ianav::math::map_projection::MapProjection;
 use ianav::math::wgs84::Geodetic;
 use mavlink::dialects::ardupilotmega as apm;
@@ -115,11 +115,6 @@ pub fn cas_mps(qc_pa: f64) -> f64 {
 pub fn tas_from_impact_pressure_mps(qc_pa: f64, p_pa: f64, temp_k: f64) -> f64 {
     let x = (qc_pa / p_pa + 1.0).powf((KAPPA - 1.0) / KAPPA) - 1.0;
     atmosphere::speed_of_sound_mps(temp_k) * (2.0 / (KAPPA - 1.0) * x.max(0.0)).sqrt()
-}
-
-/// Air density, kg/m³ (for documentation of the dynamic pressure; ideal gas).
-pub fn density_kgpm3(p_pa: f64, temp_k: f64) -> f64 {
-    p_pa / (R_JPKGK * temp_k)
 }
 
 /// Horizontal position carried by a companion's message, with how it was obtained.
@@ -255,7 +250,7 @@ mod tests {
             assert!((cas_mps(qc) - tas).abs() < 1e-9, "{tas}");
             assert!((tas_from_impact_pressure_mps(qc, P0_PA, T0_K) - tas).abs() < 1e-9);
             // Incompressible limit: qc ≈ ½ρV² within the (M²/4) compressibility term.
-            let q = 0.5 * density_kgpm3(P0_PA, T0_K) * tas * tas;
+            let q = 0.5 * atmosphere::density_kgpm3(P0_PA, T0_K) * tas * tas;
             let m = tas / atmosphere::speed_of_sound_mps(T0_K);
             assert!((qc / q - 1.0 - m * m / 4.0).abs() < 1e-3, "{tas}");
         }
@@ -266,7 +261,8 @@ mod tests {
         );
         let tas = 50.0;
         let cas = cas_mps(impact_pressure_pa(tas, p, t));
-        let eas = tas * (density_kgpm3(p, t) / density_kgpm3(P0_PA, T0_K)).sqrt();
+        let eas =
+            tas * (atmosphere::density_kgpm3(p, t) / atmosphere::density_kgpm3(P0_PA, T0_K)).sqrt();
         assert!((cas / eas - 1.0).abs() < 5e-3, "{cas} {eas}");
         assert!(
             (tas_from_impact_pressure_mps(impact_pressure_pa(tas, p, t), p, t) - tas).abs() < 1e-9
