@@ -727,7 +727,7 @@ async fn frame_stream_serves_late_and_reconnecting_clients_on_the_imu_clock() {
 async fn the_cli_flies_a_short_sitl_run_and_writes_its_log() {
     let (_conn, port, mut rx) = client().await;
     let dir = std::env::temp_dir().join(format!("ianav_sitl_cli_{}", std::process::id()));
-    let mut child = std::process::Command::new(env!("CARGO_BIN_EXE_ianav-sim"))
+    let child = std::process::Command::new(env!("CARGO_BIN_EXE_ianav-sim"))
         .args([
             "sitl",
             "--scenario",
@@ -743,19 +743,26 @@ async fn the_cli_flies_a_short_sitl_run_and_writes_its_log() {
         .arg("--out")
         .arg(&dir)
         .stdout(std::process::Stdio::piped())
+        .stderr(std::process::Stdio::piped())
         .spawn()
         .unwrap();
-    let (_, h, m) = tokio::time::timeout(Duration::from_secs(30), rx.recv())
-        .await
-        .unwrap()
-        .unwrap();
+    let mut exited = tokio::task::spawn_blocking(move || child.wait_with_output());
+    // The first message, or the child's failure, whichever comes first.
+    let first = tokio::select! {
+        m = tokio::time::timeout(Duration::from_secs(30), rx.recv()) => m.unwrap(),
+        out = &mut exited => {
+            let out = out.unwrap().unwrap();
+            panic!("ianav-sim sitl exited early: {}", String::from_utf8_lossy(&out.stderr));
+        }
+    };
+    let (_, h, _) = first.unwrap();
     assert_eq!((h.system_id, h.component_id), (1, 1));
-    let _ = m;
-    let status = tokio::task::spawn_blocking(move || child.wait())
-        .await
-        .unwrap()
-        .unwrap();
-    assert!(status.success());
+    let out = exited.await.unwrap().unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let csv = std::fs::read_to_string(dir.join("sitl.csv")).unwrap();
     assert!(csv.starts_with("t_rx_s,t_valid_s"));
     let _ = std::fs::remove_dir_all(&dir);
