@@ -122,6 +122,23 @@ pub enum NavigationMode {
     Ins,
 }
 
+/// A horizontal position from an external navigation source (issue 5, item 5: after GNSS
+/// loss an autopilot can fly on a companion computer's position). While a fresh aid is set,
+/// guidance and control fly on its latitude and longitude, carried from its time of validity
+/// to the current instant with the INS ground velocity; everything else (height, velocity,
+/// attitude, air data) stays the vehicle's own INS. This models an autopilot EKF that trusts
+/// the external position far more than its own dead-reckoned one, which is the case once
+/// GNSS has been lost for a while. Never set by `run`/`mc`: their flights are unchanged.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct PositionAid {
+    /// Time of validity, µs on the flight's sensor clock.
+    pub t_us: u64,
+    /// Latitude, rad.
+    pub lat_rad: f64,
+    /// Longitude, rad.
+    pub lon_rad: f64,
+}
+
 /// The down-looking camera and the terrain it sees (issue 4); off unless set.
 #[derive(Debug, Clone)]
 pub struct CameraSetup {
@@ -364,6 +381,10 @@ pub struct Flight {
     ins_solution: Option<InsSolution>,
     /// Sensor events of the current sample instant, in the order the INS consumes them.
     pending_events: Vec<SensorEvent>,
+    /// External horizontal position and the largest age at which it is still used, µs.
+    position_aid: Option<(PositionAid, u64)>,
+    /// Whether the current estimate's horizontal position came from `position_aid`.
+    position_aid_used: bool,
 
     camera: Option<FlightCamera>,
     mission: Mission,
@@ -404,6 +425,19 @@ pub(crate) fn estimate_from_ins(sol: &InsSolution) -> NavEstimate {
 /// Seconds → microseconds, rounded (times are validated finite and non-negative).
 fn to_us(t_s: f64) -> u64 {
     (t_s * 1e6).round().max(0.0) as u64
+}
+
+/// Replace the horizontal position of `estimate` (at `t_us`) by `aid`, carried from its time
+/// of validity to `t_us` with the estimate's ground velocity on the ellipsoid's radii.
+fn apply_position_aid(estimate: &mut NavEstimate, aid: &PositionAid, t_us: u64) {
+    let dt_s = (t_us as f64 - aid.t_us as f64) * 1e-6;
+    let h_m = estimate.pos.h_m;
+    let v = estimate.v_ned_mps;
+    let lat_rad = aid.lat_rad + v.x * dt_s / (wgs84::radius_meridian_m(aid.lat_rad) + h_m);
+    let lon_rad = aid.lon_rad
+        + v.y * dt_s / ((wgs84::radius_prime_vertical_m(aid.lat_rad) + h_m) * aid.lat_rad.cos());
+    estimate.pos.lat_rad = lat_rad;
+    estimate.pos.lon_rad = lon_rad;
 }
 
 impl Flight {
@@ -569,6 +603,8 @@ impl Flight {
             ins: None,
             ins_solution: None,
             pending_events: Vec::with_capacity(8),
+            position_aid: None,
+            position_aid_used: false,
             camera,
             mission,
             distance_m: 0.0,
@@ -596,6 +632,37 @@ impl Flight {
     /// Whether the mission end has been reached.
     pub fn finished(&self) -> bool {
         self.t_us() >= self.end_us
+    }
+
+    /// Sensor-clock time of the last GNSS fix (the scenario's GNSS loss), µs.
+    pub fn gnss_loss_t_us(&self) -> u64 {
+        self.gnss_loss_us
+    }
+
+    /// Sensor-clock time of mission time 0 (the end of the warm-up), µs.
+    pub fn warmup_us(&self) -> u64 {
+        self.warmup_us
+    }
+
+    /// The estimate guidance and control fly on now.
+    pub fn estimate(&self) -> &NavEstimate {
+        &self.estimate
+    }
+
+    /// Fly on `aid` (see [`PositionAid`]) as long as it is at most `max_age_us` old, from the
+    /// next sensor instant on; a newer call replaces it. Ignored under truth navigation.
+    pub fn set_position_aid(&mut self, aid: PositionAid, max_age_us: u64) {
+        self.position_aid = Some((aid, max_age_us));
+    }
+
+    /// Stop using an external position.
+    pub fn clear_position_aid(&mut self) {
+        self.position_aid = None;
+    }
+
+    /// Whether the current estimate's horizontal position comes from the external aid.
+    pub fn position_aid_used(&self) -> bool {
+        self.position_aid_used
     }
 
     /// The current truth state.
@@ -863,6 +930,14 @@ impl Flight {
             (Some(sol), NavigationMode::Ins) => estimate_from_ins(sol),
             _ => truth_estimate,
         };
+        self.position_aid_used = false;
+        if let (Some((aid, max_age_us)), Some(_), NavigationMode::Ins) =
+            (self.position_aid, &self.ins_solution, self.navigation_mode)
+            && t_us.abs_diff(aid.t_us) <= max_age_us
+        {
+            apply_position_aid(&mut self.estimate, &aid, t_us);
+            self.position_aid_used = true;
+        }
         Ok(())
     }
 
@@ -954,6 +1029,47 @@ mod tests {
         setup.sensors.imu_period_s = 0.003; // not a multiple of the 2 ms step
         let err = Flight::new(&setup, 1).err().unwrap().to_string();
         assert!(err.contains("imu_period_s"), "{err}");
+    }
+
+    #[test]
+    fn a_fresh_position_aid_replaces_the_horizontal_estimate_and_a_stale_one_does_not() {
+        let setup = FlightSetup::builtin(2).unwrap();
+        let mut flight = Flight::new(&setup, 3).unwrap();
+        while flight.ins_solution.is_none() {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        let t_us = flight.t_us();
+        let truth = flight.truth().pos;
+        // 1 km north of the truth, valid now, usable for 0.5 s.
+        let aid = PositionAid {
+            t_us,
+            lat_rad: truth.lat_rad + 1_000.0 / wgs84::radius_meridian_m(truth.lat_rad),
+            lon_rad: truth.lon_rad,
+        };
+        flight.set_position_aid(aid, 500_000);
+        // Step to the next sensor instant (10 ms): the aid, carried by the INS velocity.
+        for _ in 0..5 {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        assert!(flight.position_aid_used());
+        let est = *flight.estimate();
+        let carried = wgs84::ned_difference_m(&flight.truth().pos, &est.pos);
+        assert!((carried.x - 1_000.0).abs() < 2.0, "{carried:?}");
+        assert!(carried.y.abs() < 2.0, "{carried:?}");
+        let ins_pos = flight.ins_solution.unwrap().pos;
+        assert!(
+            (est.pos.h_m - ins_pos.h_m).abs() < 1e-9,
+            "height stays the INS's"
+        );
+        // 0.6 s later the aid is stale: back to the INS (within metres of the truth).
+        for _ in 0..300 {
+            flight.step(&mut NoObserver).unwrap();
+        }
+        assert!(!flight.position_aid_used());
+        let d = wgs84::ned_difference_m(&flight.truth().pos, &flight.estimate().pos);
+        assert!(d.x.hypot(d.y) < 50.0, "{d:?}");
+        flight.clear_position_aid();
+        assert!(flight.position_aid.is_none());
     }
 
     #[test]

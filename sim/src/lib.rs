@@ -14,4 +14,5 @@ pub mod report;
 pub mod rng;
 pub mod scenario;
 pub mod sensors;
+pub mod sitl;
 pub mod terrain;

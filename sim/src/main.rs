@@ -6,6 +6,7 @@
 //! - `mc`: a Monte Carlo batch (or one shard of it) in parallel, one metrics file per run.
 //! - `report`: the navigation-error tables and plots of one or several `mc` directories.
 //! - `render`: one camera image of a procedural terrain zone, from a given pose.
+//! - `sitl`: the simulator as a MAVLink vehicle for the ianav daemon (`docs/SITL.md`).
 
 use std::path::PathBuf;
 use std::sync::atomic::{AtomicUsize, Ordering};
@@ -104,6 +105,12 @@ enum Command {
     Mc(McArgs),
     /// Render one down-looking camera image of a terrain zone (8-bit grey PNG).
     Render(RenderArgs),
+    /// Fly as a MAVLink vehicle (software in the loop) for the ianav daemon: stream
+    /// PX4-like or ArduPilot-like autopilot messages in real time × --speed, answer TIMESYNC
+    /// and SET_MESSAGE_INTERVAL, serve the camera frames (with --terrain), read the daemon's
+    /// ODOMETRY / VISION_POSITION_ESTIMATE / GPS_INPUT, fly on its position after GNSS loss,
+    /// and log estimate versus truth to DIR/sitl.csv. See docs/SITL.md.
+    Sitl(SitlArgs),
     /// Build the Monte Carlo report (`report.md`, plots) from `mc` directories.
     Report {
         /// Batch directories (holding `runs/`), or parents whose subdirectories are batch
@@ -137,6 +144,51 @@ struct McArgs {
     /// Output directory (created if missing): `runs/run_NNNN.csv` and the manifest.
     #[arg(long)]
     out: PathBuf,
+}
+
+/// Autopilot imitated by `sitl` (`--autopilot`).
+#[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
+enum AutopilotArg {
+    /// PX4 on an onboard link: HIGHRES_IMU at 100 Hz, every interval request accepted.
+    Px4,
+    /// ArduPlane: RAW_IMU at 25 Hz, intervals capped by its 50 Hz loop.
+    Ardupilot,
+}
+
+/// Options of `sitl`.
+#[derive(Debug, clap::Args)]
+struct SitlArgs {
+    #[command(flatten)]
+    fly: FlyArgs,
+    /// MAVLink link to the daemon: udpout:HOST:PORT (send to the daemon), udpin:IP:PORT
+    /// (listen; replies go to the last sender), tcpin:IP:PORT (serve one client),
+    /// tcpout:HOST:PORT (connect).
+    #[arg(long)]
+    connect: String,
+    /// Autopilot imitated (message set, default rates, interval limits, HEARTBEAT).
+    #[arg(long, value_enum, default_value_t = AutopilotArg::Px4)]
+    autopilot: AutopilotArg,
+    /// Simulated seconds per wall second (1 = real time, 10 = ten times faster, 0 = as fast
+    /// as possible).
+    #[arg(long, default_value_t = 1.0)]
+    speed: f64,
+    /// Serve the camera frames (with --terrain) to one TCP client on this address, e.g.
+    /// 127.0.0.1:5600.
+    #[arg(long, requires = "terrain")]
+    frames_listen: Option<String>,
+    /// Directory for sitl.csv (estimate versus truth); none: no log file.
+    #[arg(long)]
+    out: Option<PathBuf>,
+    /// MAVLink system id of the vehicle.
+    #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u8).range(1..))]
+    system_id: u8,
+    /// Keep flying on the vehicle's own INS after GNSS loss (do not use the daemon's
+    /// position).
+    #[arg(long)]
+    no_external_position: bool,
+    /// Age beyond which the daemon's position is no longer flown on, s of simulated time.
+    #[arg(long, default_value_t = 1.0)]
+    estimate_timeout: f64,
 }
 
 /// Options of `render`.
@@ -537,6 +589,130 @@ fn report(dirs: &[PathBuf], out: Option<&PathBuf>) -> Result<()> {
     Ok(())
 }
 
+fn sitl(args: &SitlArgs) -> Result<()> {
+    use ianav_sim::sitl::{self, Autopilot, FramesListen, SitlOptions, VehicleConfig};
+    if !(args.speed.is_finite() && args.speed >= 0.0) {
+        bail!("--speed must be a non-negative factor, got {}", args.speed);
+    }
+    if !(args.estimate_timeout.is_finite() && args.estimate_timeout > 0.0) {
+        bail!(
+            "--estimate-timeout must be a positive number of seconds, got {}",
+            args.estimate_timeout
+        );
+    }
+    let setup = setup(&args.fly.setup)?;
+    let options = SitlOptions {
+        connect: args.connect.clone(),
+        vehicle: VehicleConfig {
+            autopilot: match args.autopilot {
+                AutopilotArg::Px4 => Autopilot::Px4,
+                AutopilotArg::Ardupilot => Autopilot::ArduPilot,
+            },
+            system_id: args.system_id,
+            component_id: 1,
+            fly_on_estimates: !args.no_external_position,
+            estimate_timeout_us: (args.estimate_timeout * 1e6).round() as u64,
+        },
+        speed: args.speed,
+        frames: args.frames_listen.clone().map(FramesListen::Addr),
+        out_dir: args.out.clone(),
+    };
+    let runtime = tokio::runtime::Builder::new_multi_thread()
+        .worker_threads(2)
+        .enable_all()
+        .build()
+        .context("starting the async runtime")?;
+    let bar = ProgressBar::new(0);
+    bar.set_style(
+        ProgressStyle::with_template("[{elapsed_precise}] {wide_bar} {pos}/{len} s {msg}")
+            .unwrap_or_else(|_| ProgressStyle::default_bar()),
+    );
+    let pace = if args.speed == 0.0 {
+        "as fast as possible".to_owned()
+    } else {
+        format!("at {}× real time", args.speed)
+    };
+    println!(
+        "sitl: scenario {} seed {} as {:?} on {} {pace}",
+        args.fly.setup.scenario, args.fly.seed, args.autopilot, args.connect
+    );
+    // Without a terminal the bar is hidden (and drops its log lines): print plain lines,
+    // a status line every 10 s of mission time.
+    let plain = bar.is_hidden();
+    let mut next_status_s = 0.0;
+    let summary = runtime.block_on(sitl::run(&setup, args.fly.seed, options, |p, notices| {
+        bar.set_length(p.end_s.max(0.0).ceil() as u64);
+        bar.set_position(p.t_s.max(0.0) as u64);
+        for n in notices {
+            if plain {
+                println!("{n}");
+            } else {
+                bar.println(n);
+            }
+        }
+        let err = p.hor_err_m.map_or_else(
+            || "no estimate yet".to_owned(),
+            |e| format!("hor err {e:.1} m"),
+        );
+        let lag = if p.lag_s > 0.5 {
+            format!(", {:.1} s behind", p.lag_s)
+        } else {
+            String::new()
+        };
+        let status = format!(
+            "t {:.0} s, {err}, {:.0} Hz, flying on {}{lag}",
+            p.t_s,
+            p.estimate_rate_hz,
+            if p.aided { "daemon" } else { "own INS" }
+        );
+        if plain && p.t_s >= next_status_s {
+            println!("{status}");
+            next_status_s = (p.t_s / 10.0).floor() * 10.0 + 10.0;
+        }
+        bar.set_message(status);
+    }))?;
+    bar.finish();
+    let v = &summary.vehicle;
+    println!(
+        "flew {:.0} s in {:.1} s wall (max lag {:.2} s); sent {} messages ({} dropped, {} errors), received {}; TIMESYNC: {} requests answered, {} answers to ours",
+        summary.mission_s,
+        summary.wall_s,
+        summary.max_lag_s,
+        summary.sent,
+        summary.send_dropped,
+        summary.send_errors,
+        v.received,
+        v.timesync_answered,
+        v.timesync_pairs
+    );
+    println!(
+        "daemon estimates: {} used, {} refused, mean rate {}; flew on the daemon's position {:.0} % of the time after GNSS loss",
+        v.estimates,
+        v.estimates_refused,
+        summary
+            .estimate_rate_hz
+            .map_or_else(|| "-".to_owned(), |r| format!("{r:.1} Hz")),
+        if v.ticks_after_loss > 0 {
+            100.0 * v.aided_ticks as f64 / v.ticks_after_loss as f64
+        } else {
+            0.0
+        }
+    );
+    if let Some(rms) = summary.hor_err_rms_after_loss_m {
+        println!(
+            "horizontal error after GNSS loss: RMS {rms:.1} m, last {:.1} m",
+            summary.last_hor_err_m.unwrap_or(f64::NAN)
+        );
+    }
+    if v.frames > 0 {
+        println!(
+            "camera frames: {} rendered, {} sent, {} dropped (slow client), {} without a client",
+            v.frames, summary.frames_sent, summary.frames_dropped, summary.frames_without_client
+        );
+    }
+    Ok(())
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match &cli.command {
@@ -550,6 +726,7 @@ fn main() -> Result<()> {
         Command::Bench { fly } => bench(fly),
         Command::Mc(args) => mc(args),
         Command::Render(args) => render(args),
+        Command::Sitl(args) => sitl(args),
         Command::Report { dirs, out } => report(dirs, out.as_ref()),
     }
 }

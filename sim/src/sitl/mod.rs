@@ -1,0 +1,22 @@
+//! `ianav-sim sitl`: the simulator as a MAVLink vehicle for the ianav daemon (issue 5,
+//! item 5; research/mavlink.md §3 autopilot output, §3.3 message intervals, §3.4 TIMESYNC,
+//! §4–5 camera frames and SITL; `docs/SITL.md` for what is sent and why).
+//!
+//! - [`vehicle`]: the flight seen through an autopilot's MAVLink interface (synchronous,
+//!   transport-free).
+//! - [`streams`]: PX4-like and ArduPilot-like message scheduling and interval requests.
+//! - [`convert`]: SI ↔ MAVLink units.
+//! - [`frames`]: the camera frame stream server.
+//! - [`timesync`]: the vehicle's TIMESYNC requests and its map of the companion's clock.
+//! - [`link`]: the async driver: MAVLink connection, real-time pacing, `sitl.csv`.
+
+pub mod convert;
+pub mod frames;
+pub mod link;
+pub mod streams;
+pub mod timesync;
+pub mod vehicle;
+
+pub use link::{FramesListen, Progress, SitlError, SitlOptions, SitlSummary, run};
+pub use streams::Autopilot;
+pub use vehicle::{Vehicle, VehicleConfig};
