@@ -9,6 +9,7 @@
 //! right perturbations `X ⊕ τ = X ∘ Exp(τ)`; SI units and radians; time in `t_us: u64`.
 
 pub mod config;
+pub mod daemon;
 pub mod env;
 pub mod ins;
 pub mod io;
