@@ -4,6 +4,9 @@
 //! link loss and return, a frame stream absent at start, stalling and resuming). Every wait is
 //! bounded; the daemon runs in-process so its counters can be read.
 
+// Helpers outside #[test] fns: a failed loopback setup should fail the test loudly.
+#![allow(clippy::unwrap_used)]
+
 mod common;
 
 use std::time::{Duration, Instant};
@@ -173,7 +176,8 @@ async fn survives_garbage_floods_reboots_link_loss_and_a_flaky_camera() {
         port,
         &format!(
             "[camera]\nsource = \"frame_stream\"\naddress = \"127.0.0.1:{cam_port}\"\n\
-             timeout_s = 0.5\nretry_max_s = 0.4\nqueue_frames = 2\n"
+             timeout_s = 0.5\nretry_max_s = 0.4\nqueue_frames = 2\n\
+             [input]\ngnss_loss_timeout_s = 0.5\n"
         ),
     ))
     .await;
@@ -306,7 +310,52 @@ async fn survives_garbage_floods_reboots_link_loss_and_a_flaky_camera() {
         "publishing after reboot"
     );
 
-    // 4. Link loss: 2 s of silence (2× the configured 1 s link timeout), then back.
+    // 4. GNSS loss for 2.5 s (INS GNSS-denied after its 1.5 s timeout): announced, the
+    // heartbeat turns CRITICAL, publishing goes on; when GNSS is back for 5 s the INS is
+    // re-initialised at the fix (reset counter +1, announced).
+    fake.ctl.lock().unwrap().gnss_off = true;
+    let t = Instant::now();
+    tokio::time::sleep(Duration::from_millis(2500)).await;
+    assert!(
+        odo_since(t) > 60,
+        "publishing without GNSS: {}",
+        odo_since(t)
+    );
+    let texts = fake.statustexts();
+    assert!(texts.iter().any(|t| t.contains("GNSS lost")), "{texts:?}");
+    let critical = fake.received(|r| {
+        r.at > t
+            && matches!(&r.msg, apm::MavMessage::HEARTBEAT(h)
+        if h.system_status == apm::MavState::MAV_STATE_CRITICAL)
+    });
+    assert!(!critical.is_empty(), "CRITICAL heartbeat while GNSS-denied");
+    let reset_before = match fake.received(is_odometry).last().map(|r| r.msg.clone()) {
+        Some(apm::MavMessage::ODOMETRY(o)) => o.reset_counter,
+        _ => unreachable!(),
+    };
+    fake.ctl.lock().unwrap().gnss_off = false;
+    assert!(
+        wait_for(Duration::from_secs(8), || fake
+            .statustexts()
+            .iter()
+            .any(|t| t.contains("estimator reset")))
+        .await,
+        "re-initialised after GNSS return: {:?}",
+        fake.statustexts()
+    );
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let reset_after = match fake.received(is_odometry).last().map(|r| r.msg.clone()) {
+        Some(apm::MavMessage::ODOMETRY(o)) => o.reset_counter,
+        _ => unreachable!(),
+    };
+    assert_eq!(reset_after, reset_before.wrapping_add(1));
+    assert!(
+        fake.statustexts()
+            .iter()
+            .any(|t| t.contains("GNSS regained"))
+    );
+
+    // 5. Link loss: 2 s of silence (2× the configured 1 s link timeout), then back.
     fake.ctl.lock().unwrap().silent = true;
     tokio::time::sleep(Duration::from_millis(300)).await;
     let quiet_from = Instant::now() + Duration::from_millis(300);
@@ -328,7 +377,7 @@ async fn survives_garbage_floods_reboots_link_loss_and_a_flaky_camera() {
     );
     assert!(h.shared.counters().interval_requests > req1);
 
-    // 5. Camera: absent so far (retries counted); then frames, a 1.5 s stall, frames again.
+    // 6. Camera: absent so far (retries counted); then frames, a 1.5 s stall, frames again.
     assert!(
         h.shared.counters().camera_errors >= 2,
         "{:?}",

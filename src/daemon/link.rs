@@ -214,24 +214,24 @@ async fn handle_raw(
         return true;
     };
     let comp = raw.component_id();
-    if let M::HEARTBEAT(h) = &msg {
-        if h.autopilot != apm::MavAutopilot::MAV_AUTOPILOT_INVALID {
-            let kind = kind_of(cfg, h);
-            let new = shared.state(|s| {
-                let new = s.autopilot.is_none_or(|(a, _, _)| a != sys);
-                if new {
-                    s.autopilot = Some((sys, comp, kind));
-                    s.request_generation += 1;
-                }
-                new
-            });
+    if let M::HEARTBEAT(h) = &msg
+        && h.autopilot != apm::MavAutopilot::MAV_AUTOPILOT_INVALID
+    {
+        let kind = kind_of(cfg, h);
+        let new = shared.state(|s| {
+            let new = s.autopilot.is_none_or(|(a, _, _)| a != sys);
             if new {
-                tracing::info!(sys, comp, ?kind, "autopilot found");
-                st.dec
-                    .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
+                s.autopilot = Some((sys, comp, kind));
+                s.request_generation += 1;
             }
-            shared.count(|c| c.autopilot_heartbeats += 1);
+            new
+        });
+        if new {
+            tracing::info!(sys, comp, ?kind, "autopilot found");
+            st.dec
+                .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
         }
+        shared.count(|c| c.autopilot_heartbeats += 1);
     }
     let Some((ap_sys, _, _)) = shared.state(|s| s.autopilot) else {
         // Answer TIMESYNC from anyone; ignore the rest until the autopilot is known.
@@ -257,16 +257,16 @@ async fn handle_raw(
         M::SYSTEM_TIME(m) => Some(u64::from(m.time_boot_ms) * 1_000),
         _ => None,
     };
-    if let Some(ap_us) = clock_stamp_us {
-        if st.ts.observe_clock(ap_us, rx_us) {
-            st.dec.reset();
-            shared.state(|s| s.request_generation += 1);
-            shared.count(|c| c.autopilot_reboots += 1);
-            outbox.status(
-                apm::MavSeverity::MAV_SEVERITY_WARNING,
-                "ianav: autopilot reboot detected",
-            );
-        }
+    if let Some(ap_us) = clock_stamp_us
+        && st.ts.observe_clock(ap_us, rx_us)
+    {
+        st.dec.reset();
+        shared.state(|s| s.request_generation += 1);
+        shared.count(|c| c.autopilot_reboots += 1);
+        outbox.status(
+            apm::MavSeverity::MAV_SEVERITY_WARNING,
+            "ianav: autopilot reboot detected",
+        );
     }
     match &msg {
         M::TIMESYNC(t) => {

@@ -293,8 +293,20 @@ pub async fn run(
     let (event_tx, event_rx) = mpsc::channel(EVENT_CHANNEL);
     let frames = Arc::new(nav_thread::FrameQueue::new(cfg.camera.queue_frames));
     let (latest_tx, latest_rx) = watch::channel(None::<Latest>);
-    let nav_join = nav_thread::spawn(nav, event_rx, frames.clone(), latest_tx, shared.clone())
-        .map_err(|e| DaemonError::Thread(e.to_string()))?;
+    let year = if cfg.navigation.mag_decimal_year != 0.0 {
+        cfg.navigation.mag_decimal_year
+    } else {
+        clock.decimal_year()
+    };
+    let nav_join = nav_thread::spawn(
+        nav,
+        year,
+        event_rx,
+        frames.clone(),
+        latest_tx,
+        shared.clone(),
+    )
+    .map_err(|e| DaemonError::Thread(e.to_string()))?;
     let (out_tx, out_rx) = mpsc::channel(OUTBOX);
     let outbox = Outbox {
         tx: out_tx,
@@ -496,7 +508,8 @@ async fn publisher(
 struct Flags {
     link_up: bool,
     initialised: bool,
-    gnss_ok: bool,
+    /// `None` until the first fix (the first fix is not a "regained").
+    gnss_ok: Option<bool>,
     camera_ok: bool,
     reset_counter: u8,
 }
@@ -535,16 +548,17 @@ async fn monitor(
             shared.count(|c| c.link_losses += 1);
             link_lost_at = Some(now);
             tracing::warn!("link to the autopilot lost");
-        } else if !flags.link_up && link_up {
-            if let Some(t) = link_lost_at.take() {
-                let s = (now - t) as f64 / 1e6;
-                outbox.status(
-                    S::MAV_SEVERITY_NOTICE,
-                    &format!("ianav: link restored ({s:.0} s)"),
-                );
-                // The autopilot may have restarted meanwhile: ask for the streams again.
-                shared.state(|s| s.request_generation += 1);
-            }
+        } else if !flags.link_up
+            && link_up
+            && let Some(t) = link_lost_at.take()
+        {
+            let s = (now - t) as f64 / 1e6;
+            outbox.status(
+                S::MAV_SEVERITY_NOTICE,
+                &format!("ianav: link restored ({s:.0} s)"),
+            );
+            // The autopilot may have restarted meanwhile: ask for the streams again.
+            shared.state(|s| s.request_generation += 1);
         }
         flags.link_up = link_up;
         // Estimator.
@@ -562,7 +576,7 @@ async fn monitor(
         let gnss_ok = st
             .last_fix_us
             .is_some_and(|t| now.saturating_sub(t) < timeout_us);
-        if st.last_fix_us.is_some() && flags.gnss_ok != gnss_ok {
+        if st.last_fix_us.is_some() && flags.gnss_ok.is_some_and(|was| was != gnss_ok) {
             if gnss_ok {
                 outbox.status(S::MAV_SEVERITY_NOTICE, "ianav: GNSS regained");
             } else {
@@ -572,7 +586,9 @@ async fn monitor(
                 );
             }
         }
-        flags.gnss_ok = gnss_ok;
+        if st.last_fix_us.is_some() {
+            flags.gnss_ok = Some(gnss_ok);
+        }
         if camera_used {
             let cam_ok = st
                 .last_frame_us
@@ -600,10 +616,8 @@ async fn monitor(
             };
             outbox.send(apm::MavMessage::HEARTBEAT(mavlink_out::heartbeat(health)));
             // The watchdog is fed only while the estimator runs.
-            if running {
-                if let Err(e) = notifier.notify("WATCHDOG=1") {
-                    tracing::warn!("sd_notify: {e}");
-                }
+            if running && let Err(e) = notifier.notify("WATCHDOG=1") {
+                tracing::warn!("sd_notify: {e}");
             }
         }
         let period_us = (cfg.logging.counters_period_s * 1e6) as u64;

@@ -3,6 +3,11 @@
 //! and GNSS are never dropped) and a small frame queue that drops its oldest frame when the
 //! thread is late. No clock here: it only feeds the synchronous core and publishes the latest
 //! solution.
+//!
+//! GNSS return: the INS latches its GNSS-denied mode. When valid fixes have come back
+//! continuously for [`REINIT_AFTER_US`] (sensor time), the thread re-initialises the INS at the
+//! newest fix with the current attitude and sensor-error estimates (cold-start σ). The reset
+//! counter increments, so consumers (ODOMETRY `reset_counter`, STATUSTEXT) see the jump.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -14,6 +19,11 @@ use super::{Latest, Shared};
 use crate::ins::InsInit;
 use crate::nav::Navigator;
 use crate::sensors::{Frame, SensorEvent};
+
+/// Continuous valid GNSS after a loss that re-initialises the INS, µs.
+pub const REINIT_AFTER_US: u64 = 5_000_000;
+/// A gap between fixes longer than this restarts the count, µs.
+pub const REINIT_MAX_FIX_GAP_US: u64 = 1_500_000;
 
 /// Input of the navigation thread.
 #[derive(Debug)]
@@ -68,6 +78,7 @@ impl FrameQueue {
 /// Start the thread. It ends when the event channel closes.
 pub fn spawn(
     mut nav: Navigator,
+    mag_decimal_year: f64,
     mut rx: mpsc::Receiver<NavInput>,
     frames: Arc<FrameQueue>,
     latest: watch::Sender<Option<Latest>>,
@@ -77,6 +88,9 @@ pub fn spawn(
         .name("ianav-nav".to_owned())
         .spawn(move || {
             let mut since_sync = 0_u32;
+            let mut last: Option<crate::nav::NavSolution> = None;
+            // (first, newest) fix time of the current run of fixes while GNSS-denied.
+            let mut back: Option<(u64, u64)> = None;
             while let Some(input) = rx.blocking_recv() {
                 for f in frames.drain() {
                     nav.push(&SensorEvent::Frame(f));
@@ -92,7 +106,45 @@ pub fn spawn(
                         Err(e) => tracing::warn!("INS initialisation refused: {e}"),
                     },
                     NavInput::Event(ev, rx_at) => {
+                        if let (SensorEvent::Gnss(fix), Some(sol)) = (&ev, last) {
+                            if nav.gnss_denied() {
+                                let (first, _) = match back {
+                                    Some((f, n))
+                                        if fix.t_us.saturating_sub(n) <= REINIT_MAX_FIX_GAP_US =>
+                                    {
+                                        (f, n)
+                                    }
+                                    _ => (fix.t_us, fix.t_us),
+                                };
+                                back = Some((first, fix.t_us));
+                                if fix.t_us.saturating_sub(first) >= REINIT_AFTER_US {
+                                    back = None;
+                                    let mut init = InsInit::new(
+                                        sol.ins.q_nb,
+                                        fix.pos,
+                                        fix.v_ned_mps,
+                                        mag_decimal_year,
+                                    );
+                                    init.e_gyr_rps = sol.ins.e_gyr_rps;
+                                    init.e_acc_mps2 = sol.ins.e_acc_mps2;
+                                    init.e_mag_nt = sol.ins.e_mag_nt;
+                                    init.delta_b_n_nt = sol.ins.delta_b_n_nt;
+                                    init.aoa_rad = sol.ins.aoa_rad;
+                                    match nav.initialise(&init) {
+                                        Ok(()) => tracing::warn!(
+                                            "GNSS back for 5 s: INS re-initialised at the fix"
+                                        ),
+                                        Err(e) => {
+                                            tracing::warn!("INS re-initialisation refused: {e}")
+                                        }
+                                    }
+                                }
+                            } else {
+                                back = None;
+                            }
+                        }
                         if let Some(sol) = nav.push(&ev) {
+                            last = Some(sol);
                             latest.send_replace(Some(Latest { sol, imu_rx: rx_at }));
                             shared.count(|c| c.solutions += 1);
                         }

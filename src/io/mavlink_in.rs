@@ -642,10 +642,12 @@ mod tests {
         let p = RHO0_KGPM3 * atmosphere::R_JPKGK * t / 4.0;
         assert!((tas_from_eas(25.0, p, t) - 50.0).abs() < 1e-9);
         let mut d = decoder();
-        let mut m = apm::SCALED_PRESSURE_DATA::default();
-        m.time_boot_ms = 1000;
-        m.press_abs = (p / 100.0) as f32;
-        m.temperature = -2315; // 250 K − 273.15 → −23.15 °C
+        let m = apm::SCALED_PRESSURE_DATA {
+            time_boot_ms: 1000,
+            press_abs: (p / 100.0) as f32,
+            temperature: -2315, // 250 K − 273.15 → −23.15 °C
+            ..Default::default()
+        };
         d.decode(
             &apm::MavMessage::AIRSPEED(apm::AIRSPEED_DATA {
                 airspeed: 25.0,

@@ -188,16 +188,16 @@ impl TimeSync {
             return false;
         }
         let mut reboot = false;
-        if let Some(newest) = self.newest_ap_us {
-            if ap_us.saturating_add(REBOOT_BACKSTEP_US) < newest {
-                self.counters.reboots += 1;
-                self.offset_ns = None;
-                self.n = 0;
-                self.consecutive_outliers = 0;
-                self.envelope_us = None;
-                self.newest_ap_us = None;
-                reboot = true;
-            }
+        if let Some(newest) = self.newest_ap_us
+            && ap_us.saturating_add(REBOOT_BACKSTEP_US) < newest
+        {
+            self.counters.reboots += 1;
+            self.offset_ns = None;
+            self.n = 0;
+            self.consecutive_outliers = 0;
+            self.envelope_us = None;
+            self.newest_ap_us = None;
+            reboot = true;
         }
         self.newest_ap_us = Some(self.newest_ap_us.map_or(ap_us, |n| n.max(ap_us)));
         let sample = rx_us as i64 - ap_us as i64;

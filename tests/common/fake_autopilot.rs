@@ -4,7 +4,8 @@
 //! GLOBAL_POSITION_INT (5 Hz) and HEARTBEAT (1 Hz), answering TIMESYNC, and recording every
 //! message the daemon sends. Frames are written by hand so the tests can also inject garbage.
 
-#![allow(dead_code)]
+// Test helper: failing loudly on a broken loopback socket is the right behaviour.
+#![allow(dead_code, clippy::unwrap_used)]
 
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
@@ -254,7 +255,7 @@ impl Fake {
                     }));
                 }
                 ctl.lock().unwrap().imu_sent += u64::from(per_tick.max(1));
-                if k % 10 == 0 {
+                if k.is_multiple_of(10) {
                     let rho = atmosphere::density_kgpm3(p_pa, temp_k);
                     let eas = SPEED_MPS * (rho / 1.225).sqrt();
                     out.push(apm::MavMessage::VFR_HUD(apm::VFR_HUD_DATA {
