@@ -457,3 +457,48 @@ async fn survives_garbage_floods_reboots_link_loss_and_a_flaky_camera() {
     // ordeal stays far below what unbounded queues of the flood would need.
     assert!(rss1 < rss0 + 50_000, "RSS grew from {rss0} kB to {rss1} kB");
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_a_key_unsigned_input_is_refused_and_everything_sent_is_signed() {
+    let key: [u8; 32] = std::array::from_fn(|i| (i * 7 + 3) as u8);
+    let hex: String = key.iter().map(|b| format!("{b:02x}")).collect();
+    let port = fa::free_udp_port();
+    let text = format!(
+        "[mavlink]\nconnection = \"udpin:127.0.0.1:{port}\"\nsigning_key = \"{hex}\"\n\
+         refuse_unsigned = true\n[output]\nmode = \"odometry\"\nrate_hz = 30.0\n\
+         [navigation]\nmag_decimal_year = 2026.5\n[logging]\ncounters_period_s = 0.0\n"
+    );
+    let (h, task) = start(DaemonConfig::from_toml_str(&text, None).unwrap()).await;
+    let fake = Fake::start(port).await;
+    tokio::time::sleep(Duration::from_millis(1500)).await;
+    assert_eq!(
+        h.shared.state(|s| s.autopilot),
+        None,
+        "unsigned HEARTBEAT accepted"
+    );
+    assert_eq!(h.shared.counters().rx_frames, 0);
+    assert!(fake.received(is_odometry).is_empty());
+    *fake.signing.lock().unwrap() = Some(fa::signing_data(key));
+    let t = Instant::now();
+    assert!(
+        wait_for(Duration::from_secs(6), || fake
+            .received(|r| is_odometry(r) && r.at > t)
+            .len()
+            > 10)
+        .await,
+        "signed input accepted: {:?}",
+        h.shared.counters()
+    );
+    let c = stop(h, task).await;
+    assert!(
+        c.rx_signed_frames > 100 && c.rx_signed_frames == c.rx_frames,
+        "{c:?}"
+    );
+    // Everything the daemon sent after the fake had the key verifies with it.
+    let after: Vec<Rx> = fake.received(|r| r.at > t);
+    assert!(after.len() > 20);
+    assert!(
+        after.iter().all(|r| r.signed_ok),
+        "unsigned or badly signed frames from the daemon"
+    );
+}

@@ -15,7 +15,7 @@ use ianav::env::atmosphere;
 use ianav::env::magnetic::MagneticModel;
 use ianav::math::wgs84::{self, Geodetic};
 use mavlink::dialects::ardupilotmega as apm;
-use mavlink::{MavHeader, MavlinkVersion};
+use mavlink::{MAVLinkMessageRaw, MavHeader, MavlinkVersion, SigningConfig, SigningData};
 use tokio::net::UdpSocket;
 
 pub const LAT0_DEG: f64 = 45.0;
@@ -31,6 +31,18 @@ pub struct Rx {
     pub header: MavHeader,
     pub version: MavlinkVersion,
     pub msg: apm::MavMessage,
+    /// The frame carried a signature valid for the fake's key (false without a key).
+    pub signed_ok: bool,
+}
+
+/// Signing state shared by the fake's tasks (`None`: unsigned).
+pub type Signing = Arc<Mutex<Option<Arc<SigningData>>>>;
+
+/// Signing data for `key` (outgoing frames signed, link id 7).
+pub fn signing_data(key: [u8; 32]) -> Arc<SigningData> {
+    Arc::new(SigningData::from_config(SigningConfig::new(
+        key, 7, true, false,
+    )))
 }
 
 /// Test controls of the stream.
@@ -57,6 +69,7 @@ pub struct Fake {
     pub start: Instant,
     seq: Arc<Mutex<u8>>,
     boot: Arc<Mutex<Instant>>,
+    pub signing: Signing,
 }
 
 /// A free UDP port on 127.0.0.1.
@@ -69,6 +82,28 @@ pub fn free_udp_port() -> u16 {
 pub fn free_tcp_port() -> u16 {
     let s = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
     s.local_addr().unwrap().port()
+}
+
+/// Encode one frame, signed when `signing` holds a key (MAVLink 2 only).
+pub fn frame_signed(
+    signing: &Signing,
+    sys: u8,
+    comp: u8,
+    seq: u8,
+    msg: &apm::MavMessage,
+) -> Vec<u8> {
+    let sd = signing.lock().unwrap().clone();
+    let Some(sd) = sd else {
+        return frame(MavlinkVersion::V2, sys, comp, seq, msg);
+    };
+    let mut buf = Vec::new();
+    let h = MavHeader {
+        system_id: u32::from(sys),
+        component_id: comp,
+        sequence: seq,
+    };
+    mavlink::write_v2_msg_signed(&mut buf, h, msg, Some(&sd)).unwrap();
+    buf
 }
 
 /// Encode one frame.
@@ -92,17 +127,31 @@ pub fn frame(
     buf
 }
 
-/// Decode every frame of a datagram.
-pub fn decode_all(buf: &[u8]) -> Vec<(MavHeader, MavlinkVersion, apm::MavMessage)> {
+/// Decode every frame of a datagram; checks signatures against `verify` when given.
+pub fn decode_all(
+    buf: &[u8],
+    verify: Option<&SigningData>,
+) -> Vec<(MavHeader, MavlinkVersion, apm::MavMessage, bool)> {
+    use mavlink::Message;
     let mut out = Vec::new();
     let mut r = mavlink::MavlinkReader::new(buf);
-    while let Ok((h, m)) = r.read_any_message::<apm::MavMessage>() {
-        let v = if buf.first() == Some(&0xfe) {
-            MavlinkVersion::V1
-        } else {
-            MavlinkVersion::V2
+    while let Ok(raw) = r.read_any_raw_message::<apm::MavMessage>() {
+        let v = raw.version();
+        let Ok(m) = apm::MavMessage::parse(v, raw.message_id(), raw.payload()) else {
+            continue;
         };
-        out.push((h, v, m));
+        let h = MavHeader {
+            system_id: raw.system_id(),
+            component_id: raw.component_id(),
+            sequence: raw.sequence(),
+        };
+        let signed_ok = match (&raw, verify) {
+            (MAVLinkMessageRaw::V2(r2), Some(sd)) => {
+                r2.incompatibility_flags() & 1 != 0 && sd.verify_signature(r2)
+            }
+            _ => false,
+        };
+        out.push((h, v, m, signed_ok));
     }
     out
 }
@@ -123,6 +172,7 @@ impl Fake {
             start: Instant::now(),
             seq: Arc::new(Mutex::new(0)),
             boot: Arc::new(Mutex::new(Instant::now())),
+            signing: Arc::new(Mutex::new(None)),
         };
         fake.spawn_receiver();
         fake.spawn_streamer();
@@ -139,7 +189,7 @@ impl Fake {
             *s = s.wrapping_add(1);
             *s
         };
-        let f = frame(MavlinkVersion::V2, 1, 1, seq, msg);
+        let f = frame_signed(&self.signing, 1, 1, seq, msg);
         let _ = self.sock.send_to(&f, self.daemon).await;
     }
 
@@ -148,13 +198,14 @@ impl Fake {
     }
 
     fn spawn_receiver(&self) {
-        let (sock, rx, boot, daemon, seq, ctl) = (
+        let (sock, rx, boot, daemon, seq, ctl, signing) = (
             self.sock.clone(),
             self.rx.clone(),
             self.boot.clone(),
             self.daemon,
             self.seq.clone(),
             self.ctl.clone(),
+            self.signing.clone(),
         );
         tokio::spawn(async move {
             let mut buf = vec![0_u8; 65_536];
@@ -162,7 +213,11 @@ impl Fake {
                 let Ok((n, _)) = sock.recv_from(&mut buf).await else {
                     return;
                 };
-                for (header, version, msg) in decode_all(&buf[..n]) {
+                // Signatures are checked per (link, system, component) stream, so one
+                // SigningData can sign ours and verify the daemon's.
+                let sd_verify = signing.lock().unwrap().clone();
+                for (header, version, msg, signed_ok) in decode_all(&buf[..n], sd_verify.as_deref())
+                {
                     if let apm::MavMessage::TIMESYNC(t) = &msg {
                         // A lost link is lost both ways.
                         if t.tc1 == 0 && !ctl.lock().unwrap().silent {
@@ -178,7 +233,7 @@ impl Fake {
                                 *s = s.wrapping_add(1);
                                 *s
                             };
-                            let f = frame(MavlinkVersion::V2, 1, 1, s, &reply);
+                            let f = frame_signed(&signing, 1, 1, s, &reply);
                             let _ = sock.send_to(&f, daemon).await;
                         }
                     }
@@ -187,6 +242,7 @@ impl Fake {
                         header,
                         version,
                         msg,
+                        signed_ok,
                     });
                 }
             }
@@ -194,12 +250,13 @@ impl Fake {
     }
 
     fn spawn_streamer(&self) {
-        let (sock, ctl, boot, daemon, seq) = (
+        let (sock, ctl, boot, daemon, seq, signing) = (
             self.sock.clone(),
             self.ctl.clone(),
             self.boot.clone(),
             self.daemon,
             self.seq.clone(),
+            self.signing.clone(),
         );
         let mag_model = MagneticModel::new(2026.5).unwrap();
         tokio::spawn(async move {
@@ -324,7 +381,7 @@ impl Fake {
                         *s = s.wrapping_add(1);
                         *s
                     };
-                    let f = frame(MavlinkVersion::V2, 1, 1, s, &m);
+                    let f = frame_signed(&signing, 1, 1, s, &m);
                     let _ = sock.send_to(&f, daemon).await;
                 }
             }
