@@ -107,7 +107,14 @@ async fn initialises_publishes_at_rate_answers_timesync_and_requests_intervals()
         .len();
     let rate = n as f64 / (t1 - t0).as_secs_f64();
     assert!((27.0..=33.0).contains(&rate), "ODOMETRY at {rate:.1} Hz");
+    let lat = h.shared.latency_percentiles().expect("latencies measured");
+    eprintln!(
+        "IMU received → ODOMETRY written latency (µs): p50 {} p99 {} max {}",
+        lat.0, lat.1, lat.2
+    );
     let c = stop(h, task).await;
+    // One latency per published ODOMETRY (those not sent before the peer was known aside).
+    assert!(c.latency_samples + 5 >= c.published, "{c:?}");
 
     // HEARTBEAT: onboard controller, component 197, system id adopted from the autopilot.
     let hb = fake.received(|r| matches!(r.msg, apm::MavMessage::HEARTBEAT(_)));

@@ -49,13 +49,13 @@ async fn connect(cfg: &DaemonConfig) -> std::io::Result<Conn> {
 /// Send queued messages on the current connection.
 pub(super) async fn writer(
     cfg: Arc<DaemonConfig>,
-    mut out: mpsc::Receiver<apm::MavMessage>,
+    mut out: mpsc::Receiver<super::Outgoing>,
     conn: watch::Receiver<Option<Arc<Conn>>>,
     shared: Arc<Shared>,
     mut stop: watch::Receiver<bool>,
 ) {
     loop {
-        let msg = tokio::select! {
+        let (msg, imu_rx) = tokio::select! {
             m = out.recv() => match m { Some(m) => m, None => return },
             _ = stop.wait_for(|s| *s) => return,
         };
@@ -77,7 +77,13 @@ pub(super) async fn writer(
         match c.send(&header, &msg).await {
             // udpin before the first datagram: no peer to send to.
             Ok(0) => shared.count(|c| c.tx_failed += 1),
-            Ok(_) => shared.count(|c| c.tx_messages += 1),
+            Ok(_) => {
+                shared.count(|c| c.tx_messages += 1);
+                if let Some(t) = imu_rx {
+                    shared
+                        .record_latency(u64::try_from(t.elapsed().as_micros()).unwrap_or(u64::MAX));
+                }
+            }
             Err(e) => {
                 tracing::debug!("send {}: {e}", msg.message_name());
                 shared.count(|c| c.tx_failed += 1);

@@ -168,12 +168,15 @@ pub struct Counters {
     pub camera_connects: u64,
     /// STATUSTEXTs sent.
     pub statustexts: u64,
-    /// Latency from reception of an IMU message to the send of a solution computed from it:
-    /// the last value and the largest, µs.
-    pub latency_last_us: u64,
-    /// Largest latency, µs.
+    /// Published solutions whose latency was measured.
+    pub latency_samples: u64,
+    /// Largest latency from the reception of an IMU message to the socket write of the
+    /// solution computed from it, µs.
     pub latency_max_us: u64,
 }
+
+/// Latencies kept for percentiles (a ring of the most recent ones).
+pub const LATENCY_RING: usize = 8_192;
 
 /// Link and estimator state shared by the tasks.
 #[derive(Debug, Clone, Default)]
@@ -201,6 +204,7 @@ pub struct State {
 pub struct Shared {
     counters: Mutex<Counters>,
     state: Mutex<State>,
+    latencies_us: Mutex<Vec<u32>>,
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -217,6 +221,35 @@ impl Shared {
     /// A copy of the counters.
     pub fn counters(&self) -> Counters {
         lock(&self.counters).clone()
+    }
+
+    /// Record one IMU → socket latency.
+    pub fn record_latency(&self, us: u64) {
+        let n = {
+            let mut c = lock(&self.counters);
+            c.latency_max_us = c.latency_max_us.max(us);
+            c.latency_samples += 1;
+            c.latency_samples
+        };
+        let mut ring = lock(&self.latencies_us);
+        let v = u32::try_from(us).unwrap_or(u32::MAX);
+        if ring.len() < LATENCY_RING {
+            ring.push(v);
+        } else {
+            let i = usize::try_from(n % LATENCY_RING as u64).unwrap_or(0);
+            ring[i] = v;
+        }
+    }
+
+    /// (p50, p99, max) of the recent latencies, µs (`None` without samples).
+    pub fn latency_percentiles(&self) -> Option<(u32, u32, u32)> {
+        let mut v = lock(&self.latencies_us).clone();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_unstable();
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        Some((at(0.5), at(0.99), at(1.0)))
     }
 
     /// Read or update the state.
@@ -237,14 +270,22 @@ pub struct Latest {
 /// Outgoing messages (bounded; full = dropped and counted).
 #[derive(Debug, Clone)]
 pub struct Outbox {
-    tx: mpsc::Sender<apm::MavMessage>,
+    tx: mpsc::Sender<Outgoing>,
     shared: Arc<Shared>,
 }
+
+/// A queued message and, for a published solution, when its IMU message was received.
+pub type Outgoing = (apm::MavMessage, Option<Instant>);
 
 impl Outbox {
     /// Queue a message.
     pub fn send(&self, msg: apm::MavMessage) {
-        if self.tx.try_send(msg).is_err() {
+        self.send_timed(msg, None);
+    }
+
+    /// Queue a message whose latency from `imu_rx` is measured when it has been written.
+    pub fn send_timed(&self, msg: apm::MavMessage, imu_rx: Option<Instant>) {
+        if self.tx.try_send((msg, imu_rx)).is_err() {
             self.shared.count(|c| c.tx_queue_full += 1);
         }
     }
@@ -417,22 +458,36 @@ async fn publisher(
     shared: Arc<Shared>,
     mut stop: watch::Receiver<bool>,
 ) {
-    let period = Duration::from_secs_f64(1.0 / cfg.output.rate_hz);
-    let mut tick = tokio::time::interval(period);
-    tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Delay);
+    let period_us = (1e6 / cfg.output.rate_hz) as u64;
+    let mut latest = latest;
     let mut origin_sent_for: Option<(u64, Geodetic)> = None;
-    let mut last_published_t: Option<u64> = None;
+    let mut next_due_us: Option<u64> = None;
     loop {
-        tokio::select! {
-            _ = tick.tick() => {}
+        // Woken by each new solution (so a message leaves as soon as its IMU sample is
+        // processed), or by a timeout that counts the ticks missed while nothing is fresh.
+        let fresh = tokio::select! {
+            r = latest.changed() => match r { Ok(()) => true, Err(_) => return },
+            _ = tokio::time::sleep(Duration::from_micros(2 * period_us)) => false,
             _ = stop.wait_for(|s| *s) => return,
-        }
-        let Some(l) = *latest.borrow() else { continue };
+        };
+        let Some(l) = *latest.borrow_and_update() else {
+            continue;
+        };
         let now_us = clock.now_us();
-        if now_us.saturating_sub(l.sol.ins.t_us) > MAX_SOLUTION_AGE_US {
-            shared.count(|c| c.publish_stale += 1);
+        if !fresh || now_us.saturating_sub(l.sol.ins.t_us) > MAX_SOLUTION_AGE_US {
+            if now_us.saturating_sub(l.sol.ins.t_us) > MAX_SOLUTION_AGE_US {
+                shared.count(|c| c.publish_stale += 1);
+            }
             continue;
         }
+        // Rate: publish the first solution at or after each due time; due times advance by
+        // the period (so 30 Hz from a 100 Hz IMU alternates 30/40 ms and averages 30 Hz), and
+        // never lag the present by more than a period (no burst after a gap).
+        let due = *next_due_us.get_or_insert(now_us);
+        if now_us < due {
+            continue;
+        }
+        next_due_us = Some((due + period_us).max(now_us.saturating_sub(period_us)));
         let (ap, origin, undulation_m, generation) =
             shared.state(|s| (s.autopilot, s.origin, s.undulation_m, s.request_generation));
         let kind = ap.map(|a| a.2);
@@ -487,18 +542,7 @@ async fn publisher(
                 }
             }
         };
-        if last_published_t == Some(t_us) {
-            // The same solution again (IMU slower than the output rate): still published,
-            // the autopilot wants a steady rate; the latency is only measured once.
-        } else {
-            let lat_us = u64::try_from(l.imu_rx.elapsed().as_micros()).unwrap_or(u64::MAX);
-            shared.count(|c| {
-                c.latency_last_us = lat_us;
-                c.latency_max_us = c.latency_max_us.max(lat_us);
-            });
-            last_published_t = Some(t_us);
-        }
-        outbox.send(msg);
+        outbox.send_timed(msg, Some(l.imu_rx));
         shared.count(|c| c.published += 1);
     }
 }
@@ -652,6 +696,7 @@ pub fn log_counters(c: &Counters) {
         frames = c.frames_received,
         frames_dropped = c.frames_dropped,
         camera_err = c.camera_errors,
+        latency_samples = c.latency_samples,
         latency_max_us = c.latency_max_us,
         "counters"
     );
