@@ -93,6 +93,14 @@ fn main() -> anyhow::Result<()> {
                     _ = term.recv() => tracing::info!("SIGTERM: stopping"),
                 }
                 ianav::daemon::log_counters(&handle.shared.counters());
+                if let Some((p50, p99, max)) = handle.shared.latency_percentiles() {
+                    tracing::info!(
+                        p50_us = p50,
+                        p99_us = p99,
+                        max_us = max,
+                        "IMU received → solution written latency"
+                    );
+                }
                 handle.stop();
                 daemon.await.context("daemon task")??;
                 Ok(())

@@ -568,10 +568,14 @@ async fn monitor(
     mut stop: watch::Receiver<bool>,
 ) {
     use apm::MavSeverity as S;
+    // systemd: STATUS while waiting; READY=1 when the estimator first runs (so the start
+    // timeout, not the watchdog, covers the wait for the first fix); WATCHDOG=1 each second
+    // only while it runs.
     let notifier = notify::Notifier::from_env();
-    if let Err(e) = notifier.notify("READY=1\nSTATUS=waiting for the autopilot") {
+    if let Err(e) = notifier.notify("STATUS=waiting for the autopilot and a GNSS fix") {
         tracing::warn!("sd_notify: {e}");
     }
+    let mut ready_sent = false;
     let mut flags = Flags::default();
     let mut link_lost_at: Option<u64> = None;
     let mut last_heartbeat_us: Option<u64> = None;
@@ -660,8 +664,16 @@ async fn monitor(
             };
             outbox.send(apm::MavMessage::HEARTBEAT(mavlink_out::heartbeat(health)));
             // The watchdog is fed only while the estimator runs.
-            if running && let Err(e) = notifier.notify("WATCHDOG=1") {
-                tracing::warn!("sd_notify: {e}");
+            let msg = match (running, ready_sent) {
+                (true, false) => Some("READY=1\nSTATUS=estimator running\nWATCHDOG=1"),
+                (true, true) => Some("WATCHDOG=1"),
+                (false, _) => None,
+            };
+            if let Some(m) = msg {
+                ready_sent = true;
+                if let Err(e) = notifier.notify(m) {
+                    tracing::warn!("sd_notify: {e}");
+                }
             }
         }
         let period_us = (cfg.logging.counters_period_s * 1e6) as u64;

@@ -16,6 +16,10 @@
 //!   Mach 0.3 and 3 km) and converted to true airspeed with the density from the static
 //!   pressure and temperature: `tas = eas · √(ρ₀ / ρ)`, `ρ = p / (R T)`.
 //! - AOA_SSA: degrees.
+//! - One IMU source at a time: HIGHRES_IMU over SCALED_IMU over RAW_IMU. A lower-priority IMU
+//!   message is ignored (counted) while a higher-priority one arrived within
+//!   [`IMU_SOURCE_HOLD_US`]: ArduPilot streams RAW_IMU at 1 Hz by default next to the
+//!   SCALED_IMU the daemon requests, and mixing them would interleave two copies of one IMU.
 //! - GPS_RAW_INT: degE7, `alt_ellipsoid` mm (height above the ellipsoid, our `h`; when it is 0
 //!   the MSL `alt` is used and counted, an error of the geoid undulation, ±100 m), `vel` cm/s
 //!   along `cog` cdeg for the horizontal velocity. GPS_RAW_INT has no vertical velocity: the
@@ -57,6 +61,8 @@ pub const AIR_MAX_AGE_US: u64 = 500_000;
 pub const VZ_MAX_AGE_US: u64 = 1_000_000;
 /// σ of the down velocity when none is known, m/s (a fixed wing rarely climbs faster).
 pub const VD_UNKNOWN_SIGMA_MPS: f64 = 3.0;
+/// A lower-priority IMU message is ignored while a higher-priority one is this recent, µs.
+pub const IMU_SOURCE_HOLD_US: u64 = 1_000_000;
 /// User-equivalent range error turning a DOP into a σ when no accuracy is reported, m.
 pub const UERE_M: f64 = 3.0;
 
@@ -115,6 +121,8 @@ pub struct InputCounters {
     pub gnss_msl_height: u64,
     /// GNSS fixes without a recent vertical velocity.
     pub gnss_no_vd: u64,
+    /// IMU messages ignored because a higher-priority IMU message type is streaming.
+    pub imu_lower_priority: u64,
 }
 
 impl InputCounters {
@@ -176,6 +184,8 @@ pub struct InputDecoder {
     attitude: Option<ApAttitude>,
     /// Last geoid undulation seen (alt_ellipsoid − alt), m.
     undulation_m: Option<f64>,
+    /// Last time of each IMU message type: HIGHRES_IMU, SCALED_IMU, RAW_IMU, µs.
+    imu_seen_us: [Option<u64>; 3],
 }
 
 /// Events decoded from one message (at most IMU + magnetometer + air data).
@@ -218,6 +228,7 @@ impl InputDecoder {
             vz: None,
             attitude: None,
             undulation_m: None,
+            imu_seen_us: [None; 3],
         }
     }
 
@@ -247,6 +258,21 @@ impl InputDecoder {
         self.vanes = None;
         self.vz = None;
         self.attitude = None;
+        self.imu_seen_us = [None; 3];
+    }
+
+    /// Note an IMU message of `priority` (0 = best) at `t_us`; `false` if a better one is
+    /// streaming.
+    fn imu_preferred(&mut self, priority: usize, t_us: u64) -> bool {
+        self.imu_seen_us[priority] = Some(t_us);
+        let better = self.imu_seen_us[..priority]
+            .iter()
+            .flatten()
+            .any(|t| t_us.abs_diff(*t) <= IMU_SOURCE_HOLD_US);
+        if better {
+            self.counters.imu_lower_priority += 1;
+        }
+        !better
     }
 
     /// Convert one message. `map` turns the message's timestamp into the daemon's `t_us`
@@ -284,7 +310,7 @@ impl InputDecoder {
                 let t_us = map(ApTime::BootUs(m.time_usec)).ok_or(Reject::Time)?;
                 let bits = m.fields_updated.bits();
                 let has = |mask: u16| bits == 0 || bits & mask == mask;
-                if has(0x003f) {
+                if has(0x003f) && self.imu_preferred(0, t_us) {
                     let accel = Vector3::new(m.xacc, m.yacc, m.zacc).cast::<f64>();
                     let gyro = Vector3::new(m.xgyro, m.ygyro, m.zgyro).cast::<f64>();
                     check_imu(&accel, &gyro)?;
@@ -316,6 +342,9 @@ impl InputDecoder {
             }
             M::SCALED_IMU(m) => {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
+                if !self.imu_preferred(1, t_us) {
+                    return Ok(());
+                }
                 self.scaled_imu(
                     t_us,
                     [m.xacc, m.yacc, m.zacc],
@@ -329,6 +358,9 @@ impl InputDecoder {
                     return Err(Reject::UnscaledRawImu);
                 }
                 let t_us = map(ApTime::BootUs(m.time_usec)).ok_or(Reject::Time)?;
+                if !self.imu_preferred(2, t_us) {
+                    return Ok(());
+                }
                 self.scaled_imu(
                     t_us,
                     [m.xacc, m.yacc, m.zacc],
@@ -708,9 +740,23 @@ mod tests {
         });
         assert!(d.decode(&raw, &mut map).is_empty());
         assert_eq!(d.counters().unscaled_raw_imu, 1);
+        // SCALED_IMU streamed 10 ms before: the RAW_IMU copy of the same IMU is ignored.
         d.set_raw_imu_is_scaled(true);
-        let ev = d.decode(&raw, &mut map);
+        assert!(d.decode(&raw, &mut map).is_empty());
+        assert_eq!(d.counters().imu_lower_priority, 1);
+        // Alone (no SCALED_IMU for > 1 s), it is used.
+        let mut d2 = decoder();
+        d2.set_raw_imu_is_scaled(true);
+        let ev = d2.decode(&raw, &mut map);
         assert_eq!(ev.len(), 1, "zero magnetometer = none fitted");
+        // HIGHRES_IMU takes over from SCALED_IMU.
+        d.decode(&apm::MavMessage::HIGHRES_IMU(highres(0x003f)), &mut map);
+        let mut later = m;
+        later.time_boot_ms = 1_010;
+        assert!(
+            d.decode(&apm::MavMessage::SCALED_IMU(later), &mut map)
+                .is_empty()
+        );
     }
 
     #[test]
