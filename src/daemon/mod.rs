@@ -713,3 +713,20 @@ pub fn log_counters(c: &Counters) {
         "counters"
     );
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The memory bound stated in docs/DAEMON.md: queue capacities × element sizes.
+    #[test]
+    fn queue_elements_are_small_enough_for_the_stated_memory_bound() {
+        let nav = std::mem::size_of::<nav_thread::NavInput>();
+        let out = std::mem::size_of::<Outgoing>();
+        eprintln!("NavInput {nav} B, Outgoing {out} B");
+        assert!(nav <= 128, "NavInput is {nav} B");
+        assert!(out <= 320, "Outgoing is {out} B");
+        // 2,048 × 128 B + 256 × 320 B < 350 kB.
+        assert!(EVENT_CHANNEL * 128 + OUTBOX * 320 < 350_000);
+    }
+}
