@@ -509,3 +509,52 @@ async fn with_a_key_unsigned_input_is_refused_and_everything_sent_is_signed() {
         "unsigned or badly signed frames from the daemon"
     );
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn directory_camera_absent_at_start_then_read_in_name_order() {
+    let port = fa::free_udp_port();
+    let dir = std::env::temp_dir().join(format!("ianav-frames-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let (h, task) = start(config(
+        port,
+        &format!(
+            "[camera]\nsource = \"directory\"\npath = \"{}\"\nretry_max_s = 0.2\n",
+            dir.display()
+        ),
+    ))
+    .await;
+    // No directory yet: retried and counted, the daemon keeps running.
+    assert!(
+        wait_for(Duration::from_secs(2), || h.shared.counters().camera_errors
+            >= 2)
+        .await
+    );
+    std::fs::create_dir_all(&dir).unwrap();
+    // Stems are exposure times in µs: 0, 0.1 s, 0.2 s; one file is not an image.
+    for (name, v) in [
+        ("000200000.pgm", 3_u8),
+        ("000000000.pgm", 1),
+        ("000100000.pgm", 2),
+    ] {
+        let mut b = b"P5\n4 2\n255\n".to_vec();
+        b.extend_from_slice(&[v; 8]);
+        std::fs::write(dir.join(name), b).unwrap();
+    }
+    std::fs::write(dir.join("notes.txt"), "not a frame").unwrap();
+    let t0 = Instant::now();
+    assert!(
+        wait_for(Duration::from_secs(3), || h
+            .shared
+            .counters()
+            .frames_received
+            == 3)
+        .await
+    );
+    // Paced by the stems: the last frame 0.2 s after the first (after the retry delay).
+    assert!(t0.elapsed() >= Duration::from_millis(200));
+    let c = stop(h, task).await;
+    assert_eq!((c.frames_received, c.camera_connects), (3, 1));
+    // The navigator received them (it counts frames until vision lands).
+    assert_eq!(c.nav.frames, 3);
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -18,9 +18,9 @@ use std::sync::Arc;
 use std::time::Duration;
 
 use tokio::io::AsyncReadExt;
-use tokio::sync::watch;
+use tokio::sync::{mpsc, watch};
 
-use super::nav_thread::FrameQueue;
+use super::nav_thread::{FrameQueue, NavInput};
 use super::{Clock, Shared, stopped_after};
 use crate::config::{CameraSourceKind, DaemonConfig};
 use crate::io::frame_stream::{FrameHeader, HEADER_BYTES};
@@ -31,33 +31,49 @@ pub(super) async fn run(
     cfg: Arc<DaemonConfig>,
     clock: Clock,
     frames: Arc<FrameQueue>,
+    wake: mpsc::Sender<NavInput>,
     shared: Arc<Shared>,
     stop: watch::Receiver<bool>,
 ) {
+    let out = Out {
+        frames,
+        wake,
+        shared,
+    };
     match cfg.camera.source {
-        CameraSourceKind::FrameStream => frame_stream(cfg, clock, frames, shared, stop).await,
-        CameraSourceKind::Directory => directory(cfg, clock, frames, shared, stop).await,
+        CameraSourceKind::FrameStream => frame_stream(cfg, clock, out, stop).await,
+        CameraSourceKind::Directory => directory(cfg, clock, out, stop).await,
         // No camera, or a source this build cannot open (refused by the configuration).
         _ => {}
     }
 }
 
-fn deliver(frames: &FrameQueue, shared: &Shared, f: Frame, now_us: u64) {
-    let dropped = frames.push(f);
-    shared.count(|c| {
-        c.frames_received += 1;
-        c.frames_dropped += dropped;
-    });
-    shared.state(|s| s.last_frame_us = Some(now_us));
+/// Where frames go.
+struct Out {
+    frames: Arc<FrameQueue>,
+    wake: mpsc::Sender<NavInput>,
+    shared: Arc<Shared>,
+}
+
+impl Out {
+    fn deliver(&self, f: Frame, now_us: u64) {
+        let dropped = self.frames.push(f);
+        self.shared.count(|c| {
+            c.frames_received += 1;
+            c.frames_dropped += dropped;
+        });
+        self.shared.state(|s| s.last_frame_us = Some(now_us));
+        let _ = self.wake.try_send(NavInput::FramesReady);
+    }
 }
 
 async fn frame_stream(
     cfg: Arc<DaemonConfig>,
     clock: Clock,
-    frames: Arc<FrameQueue>,
-    shared: Arc<Shared>,
+    out: Out,
     mut stop: watch::Receiver<bool>,
 ) {
+    let shared = out.shared.clone();
     let max_backoff = Duration::from_secs_f64(cfg.camera.retry_max_s);
     let silence = Duration::from_secs_f64(3.0 * cfg.camera.timeout_s);
     let mut backoff = Duration::from_millis(200);
@@ -133,7 +149,7 @@ async fn frame_stream(
                 height: header.height,
                 pixels: Arc::from(pixels),
             };
-            deliver(&frames, &shared, f, now);
+            out.deliver(f, now);
         }
         if stopped_after(&mut stop, backoff).await {
             return;
@@ -208,10 +224,10 @@ fn load_image(path: &Path) -> Option<(u32, u32, Vec<u8>)> {
 async fn directory(
     cfg: Arc<DaemonConfig>,
     clock: Clock,
-    frames: Arc<FrameQueue>,
-    shared: Arc<Shared>,
+    out: Out,
     mut stop: watch::Receiver<bool>,
 ) {
+    let shared = out.shared.clone();
     let dir = PathBuf::from(&cfg.camera.path);
     let max_backoff = Duration::from_secs_f64(cfg.camera.retry_max_s);
     let mut backoff = Duration::from_millis(200);
@@ -265,7 +281,7 @@ async fn directory(
             height,
             pixels: Arc::from(pixels),
         };
-        deliver(&frames, &shared, f, now);
+        out.deliver(f, now);
     }
     tracing::info!("camera directory {} exhausted", dir.display());
 }

@@ -362,6 +362,9 @@ pub async fn run(
     }
     let mut tasks = tokio::task::JoinSet::new();
     let (conn_tx, conn_rx) = watch::channel(None);
+    // The reader and the camera own the only senders: when both have stopped, the navigation
+    // thread sees the channel close and ends.
+    let cam_wake = event_tx.clone();
     tasks.spawn(link::writer(
         cfg.clone(),
         out_rx,
@@ -411,6 +414,7 @@ pub async fn run(
         cfg.clone(),
         clock,
         frames,
+        cam_wake,
         shared.clone(),
         stop_rx.clone(),
     ));

@@ -32,6 +32,9 @@ pub enum NavInput {
     Init(Box<InsInit>),
     /// A sensor event and the reception time of its message.
     Event(SensorEvent, Instant),
+    /// Frames are waiting in the [`FrameQueue`] (sent with `try_send`: when the channel is
+    /// full, events are flowing and the frames are taken with them).
+    FramesReady,
 }
 
 /// Bounded frame queue, oldest dropped first.
@@ -105,6 +108,7 @@ pub fn spawn(
                         ),
                         Err(e) => tracing::warn!("INS initialisation refused: {e}"),
                     },
+                    NavInput::FramesReady => {}
                     NavInput::Event(ev, rx_at) => {
                         if let (SensorEvent::Gnss(fix), Some(sol)) = (&ev, last) {
                             if nav.gnss_denied() {
