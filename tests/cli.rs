@@ -6,7 +6,7 @@ fn ianav(args: &[&str]) -> (bool, String, String) {
     let out = Command::new(env!("CARGO_BIN_EXE_ianav"))
         .args(args)
         .output()
-        .unwrap();
+        .expect("the ianav binary runs");
     (
         out.status.success(),
         String::from_utf8_lossy(&out.stdout).into_owned(),

@@ -731,6 +731,6 @@ mod tests {
         assert!(nav <= 128, "NavInput is {nav} B");
         assert!(out <= 320, "Outgoing is {out} B");
         // 2,048 × 128 B + 256 × 320 B < 350 kB.
-        assert!(EVENT_CHANNEL * 128 + OUTBOX * 320 < 350_000);
+        const { assert!(EVENT_CHANNEL * 128 + OUTBOX * 320 < 350_000) };
     }
 }
