@@ -268,7 +268,12 @@ async fn survives_garbage_floods_reboots_link_loss_and_a_flaky_camera() {
         "publishing after the flood"
     );
     let sent = fake.ctl.lock().unwrap().imu_sent - sent0;
+    // Compare the counters at a quiet moment (0.3 s of silence, well under the 1 s link
+    // timeout): a message being handed over would otherwise be counted on one side only.
+    fake.ctl.lock().unwrap().silent = true;
+    tokio::time::sleep(Duration::from_millis(300)).await;
     let c = h.shared.counters();
+    fake.ctl.lock().unwrap().silent = false;
     assert!(
         sent > 900,
         "flood sent {sent} IMU messages in 1 s (10× 100 Hz)"

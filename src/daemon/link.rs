@@ -220,6 +220,11 @@ async fn handle_raw(
         return true;
     };
     let comp = raw.component_id();
+    // Our own frames echoed back by a router or a broadcast link.
+    if comp == cfg.mavlink.component_id {
+        shared.count(|c| c.rx_foreign += 1);
+        return true;
+    }
     if let M::HEARTBEAT(h) = &msg
         && h.autopilot != apm::MavAutopilot::MAV_AUTOPILOT_INVALID
     {

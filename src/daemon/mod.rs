@@ -112,7 +112,8 @@ pub struct Counters {
     pub rx_signed_frames: u64,
     /// Frames whose payload did not parse (bad enum value, bad length).
     pub rx_parse_errors: u64,
-    /// Messages from systems other than the autopilot's, ignored.
+    /// Messages from systems other than the autopilot's (or carrying our own component id),
+    /// ignored.
     pub rx_foreign: u64,
     /// Sensor messages received before the autopilot's HEARTBEAT, ignored.
     pub rx_before_heartbeat: u64,
