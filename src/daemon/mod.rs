@@ -19,6 +19,7 @@ pub mod camera;
 pub mod link;
 pub mod nav_thread;
 pub mod notify;
+pub mod publish;
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant, SystemTime};
@@ -28,9 +29,8 @@ use tokio::sync::{mpsc, watch};
 use crate::config::{AutopilotKind, DaemonConfig, OutputMode};
 use crate::ins::InsStats;
 use crate::io::mavlink_in::InputCounters;
-use crate::io::mavlink_out::{self, GpsInputSettings, Health};
+use crate::io::mavlink_out::{self, Health};
 use crate::io::timesync::TimeSyncCounters;
-use crate::math::map_projection::MapProjection;
 use crate::math::wgs84::Geodetic;
 use crate::nav::{NavSolution, NavigatorStats};
 use mavlink::dialects::ardupilotmega as apm;
@@ -153,7 +153,8 @@ pub struct Counters {
     pub solutions: u64,
     /// Messages published (ODOMETRY / GPS_INPUT / VISION_POSITION_ESTIMATE).
     pub published: u64,
-    /// Publication ticks skipped because the latest solution was too old.
+    /// Monitor ticks (10 Hz) after the initialisation without a fresh solution (IMU
+    /// stopped): nothing is published then.
     pub publish_stale: u64,
     /// SET_GPS_GLOBAL_ORIGIN sent.
     pub origins_sent: u64,
@@ -340,21 +341,23 @@ pub async fn run(
     } else {
         clock.decimal_year()
     };
-    let nav_join = nav_thread::spawn(
-        nav,
-        year,
-        event_rx,
-        frames.clone(),
-        latest_tx,
-        shared.clone(),
-    )
-    .map_err(|e| DaemonError::Thread(e.to_string()))?;
     let (out_tx, out_rx) = mpsc::channel(OUTBOX);
     let outbox = Outbox {
         tx: out_tx,
         shared: shared.clone(),
     };
     let cfg = Arc::new(cfg);
+    let publisher = publish::Publisher::new(cfg.clone(), clock, outbox.clone(), shared.clone());
+    let nav_join = nav_thread::spawn(
+        nav,
+        year,
+        event_rx,
+        frames.clone(),
+        latest_tx,
+        publisher,
+        shared.clone(),
+    )
+    .map_err(|e| DaemonError::Thread(e.to_string()))?;
     if let Some(h) = handle_tx {
         let _ = h.send(Handle {
             shared: shared.clone(),
@@ -391,14 +394,6 @@ pub async fn run(
     ));
     tasks.spawn(link::interval_requests(
         cfg.clone(),
-        outbox.clone(),
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    tasks.spawn(publisher(
-        cfg.clone(),
-        clock,
-        latest_rx.clone(),
         outbox.clone(),
         shared.clone(),
         stop_rx.clone(),
@@ -452,104 +447,6 @@ pub fn resolved_mode(cfg: &DaemonConfig, kind: Option<AutopilotKind>) -> Option<
 async fn stopped_after(stop: &mut watch::Receiver<bool>, d: Duration) -> bool {
     // Ok(Err(_)): every sender is gone, which also means stop.
     tokio::time::timeout(d, stop.wait_for(|s| *s)).await.is_ok()
-}
-
-/// Publish the latest solution at `output.rate_hz`.
-async fn publisher(
-    cfg: Arc<DaemonConfig>,
-    clock: Clock,
-    latest: watch::Receiver<Option<Latest>>,
-    outbox: Outbox,
-    shared: Arc<Shared>,
-    mut stop: watch::Receiver<bool>,
-) {
-    let period_us = (1e6 / cfg.output.rate_hz) as u64;
-    let mut latest = latest;
-    let mut origin_sent_for: Option<(u64, Geodetic)> = None;
-    let mut next_due_us: Option<u64> = None;
-    loop {
-        // Woken by each new solution (so a message leaves as soon as its IMU sample is
-        // processed), or by a timeout that counts the ticks missed while nothing is fresh.
-        let fresh = tokio::select! {
-            r = latest.changed() => match r { Ok(()) => true, Err(_) => return },
-            _ = tokio::time::sleep(Duration::from_micros(2 * period_us)) => false,
-            _ = stop.wait_for(|s| *s) => return,
-        };
-        let Some(l) = *latest.borrow_and_update() else {
-            continue;
-        };
-        let now_us = clock.now_us();
-        if !fresh || now_us.saturating_sub(l.sol.ins.t_us) > MAX_SOLUTION_AGE_US {
-            if now_us.saturating_sub(l.sol.ins.t_us) > MAX_SOLUTION_AGE_US {
-                shared.count(|c| c.publish_stale += 1);
-            }
-            continue;
-        }
-        // Rate: publish the first solution at or after each due time; due times advance by
-        // the period (so 30 Hz from a 100 Hz IMU alternates 30/40 ms and averages 30 Hz), and
-        // never lag the present by more than a period (no burst after a gap).
-        let due = *next_due_us.get_or_insert(now_us);
-        if now_us < due {
-            continue;
-        }
-        next_due_us = Some((due + period_us).max(now_us.saturating_sub(period_us)));
-        let (ap, origin, undulation_m, generation) =
-            shared.state(|s| (s.autopilot, s.origin, s.undulation_m, s.request_generation));
-        let kind = ap.map(|a| a.2);
-        let Some(mode) = resolved_mode(&cfg, kind) else {
-            continue;
-        };
-        let target_system = ap.map_or(1, |a| a.0);
-        let t_us = l.sol.ins.t_us;
-        let msg = match mode {
-            OutputMode::GpsInput => {
-                let s = GpsInputSettings {
-                    gps_id: cfg.output.gps_id,
-                    satellites_visible: cfg.output.satellites_visible,
-                    leap_s: cfg.output.gps_leap_seconds,
-                    undulation_m,
-                };
-                apm::MavMessage::GPS_INPUT(mavlink_out::gps_input(
-                    &l.sol,
-                    &s,
-                    t_us,
-                    clock.unix_us(t_us),
-                ))
-            }
-            OutputMode::Odometry | OutputMode::VisionPositionEstimate | OutputMode::Auto => {
-                let Some(origin) = origin else { continue };
-                // Announce the origin once per link generation (after a reboot or a link
-                // restoration the autopilot may have lost it).
-                // SET_GPS_GLOBAL_ORIGIN is deprecated in favour of MAV_CMD_DO_SET_GLOBAL_ORIGIN
-                // (2025-04), but it is what PX4 and ArduPilot releases in the field handle.
-                #[allow(deprecated)]
-                if cfg.output.set_origin
-                    && origin_sent_for.is_none_or(|(g, o)| g != generation || o != origin)
-                {
-                    outbox.send(apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(
-                        mavlink_out::set_gps_global_origin(
-                            target_system,
-                            &origin,
-                            undulation_m,
-                            now_us,
-                        ),
-                    ));
-                    shared.count(|c| c.origins_sent += 1);
-                    origin_sent_for = Some((generation, origin));
-                }
-                let proj = MapProjection::new(&origin);
-                if mode == OutputMode::VisionPositionEstimate {
-                    apm::MavMessage::VISION_POSITION_ESTIMATE(
-                        mavlink_out::vision_position_estimate(&l.sol, &proj, t_us),
-                    )
-                } else {
-                    apm::MavMessage::ODOMETRY(mavlink_out::odometry(&l.sol, &proj, t_us))
-                }
-            }
-        };
-        outbox.send_timed(msg, Some(l.imu_rx));
-        shared.count(|c| c.published += 1);
-    }
 }
 
 /// Health flags watched by the monitor.
@@ -656,6 +553,10 @@ async fn monitor(
             flags.camera_ok = cam_ok;
         }
         let running = l.is_some_and(|l| now.saturating_sub(l.sol.ins.t_us) < MAX_SOLUTION_AGE_US);
+        if l.is_some() && !running {
+            // Nothing is published from a stale solution (the publisher runs on new ones).
+            shared.count(|c| c.publish_stale += 1);
+        }
         // HEARTBEAT at 1 Hz (sent regardless of the link: UDP/routers learn us from it).
         if last_heartbeat_us.is_none_or(|t| now.saturating_sub(t) >= 1_000_000) {
             last_heartbeat_us = Some(now);

@@ -85,6 +85,7 @@ pub fn spawn(
     mut rx: mpsc::Receiver<NavInput>,
     frames: Arc<FrameQueue>,
     latest: watch::Sender<Option<Latest>>,
+    mut publisher: super::publish::Publisher,
     shared: Arc<Shared>,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
@@ -149,6 +150,7 @@ pub fn spawn(
                         }
                         if let Some(sol) = nav.push(&ev) {
                             last = Some(sol);
+                            publisher.on_solution(&sol, rx_at);
                             latest.send_replace(Some(Latest { sol, imu_rx: rx_at }));
                             shared.count(|c| c.solutions += 1);
                         }
