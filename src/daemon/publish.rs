@@ -4,8 +4,8 @@
 //!
 //! Rate: the first solution at or after each due time is published; due times advance by
 //! `1 / output.rate_hz` of solution time (30 Hz from a 100 Hz IMU alternates 30/40 ms and
-//! averages 30 Hz; the output rate cannot exceed the IMU rate) and never lag the newest
-//! solution by more than a period (no burst after a gap).
+//! averages 30 Hz; the output rate cannot exceed the IMU rate); after a gap longer than a
+//! period the schedule restarts from the first new solution (no burst to catch up).
 
 use std::sync::Arc;
 use std::time::Instant;
@@ -54,7 +54,13 @@ impl Publisher {
         if t_us < due {
             return;
         }
-        self.next_due_us = Some((due + self.period_us).max(t_us.saturating_sub(self.period_us)));
+        // After a gap longer than a period the schedule restarts from this solution.
+        let next = due + self.period_us;
+        self.next_due_us = Some(if next <= t_us {
+            t_us + self.period_us
+        } else {
+            next
+        });
         let (ap, origin, undulation_m, generation) = self
             .shared
             .state(|s| (s.autopilot, s.origin, s.undulation_m, s.request_generation));
@@ -119,5 +125,98 @@ impl Publisher {
         ));
         self.shared.count(|c| c.origins_sent += 1);
         self.origin_sent_for = Some((generation, origin));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::config::AutopilotKind;
+    use tokio::sync::mpsc;
+
+    fn publisher(
+        rate_hz: f64,
+        mode: &str,
+    ) -> (
+        Publisher,
+        mpsc::Receiver<super::super::Outgoing>,
+        Arc<Shared>,
+    ) {
+        let cfg = DaemonConfig::from_toml_str(
+            &format!(
+                "[mavlink]\nconnection = \"udpin:127.0.0.1:1\"\n\
+                 [output]\nmode = \"{mode}\"\nrate_hz = {rate_hz}\n"
+            ),
+            None,
+        )
+        .unwrap();
+        let shared = Arc::new(Shared::default());
+        let (tx, rx) = mpsc::channel(10_000);
+        let outbox = Outbox {
+            tx,
+            shared: shared.clone(),
+        };
+        let p = Publisher::new(Arc::new(cfg), Clock::new(), outbox, shared.clone());
+        (p, rx, shared)
+    }
+
+    fn solution(t_us: u64) -> NavSolution {
+        let mut s = crate::io::mavlink_out::tests::solution();
+        s.ins.t_us = t_us;
+        s
+    }
+
+    fn count(rx: &mut mpsc::Receiver<super::super::Outgoing>, name: &str) -> usize {
+        let mut n = 0;
+        while let Ok((m, _)) = rx.try_recv() {
+            n += usize::from(mavlink::Message::message_name(&m) == name);
+        }
+        n
+    }
+
+    #[test]
+    fn rates_follow_solution_time_without_bursts() {
+        let (mut p, mut rx, shared) = publisher(30.0, "odometry");
+        let origin = solution(0).ins.pos;
+        shared.state(|s| {
+            s.autopilot = Some((1, 1, AutopilotKind::Px4));
+            s.origin = Some(origin);
+        });
+        let now = Instant::now();
+        // 10 s of 100 Hz solutions: exactly 300 ODOMETRY and one origin.
+        for k in 0..1_000 {
+            p.on_solution(&solution(k * 10_000), now);
+        }
+        assert_eq!(count(&mut rx, "ODOMETRY"), 300);
+        assert_eq!(shared.counters().origins_sent, 1);
+        // A 2 s gap, then 1 s more: 30 messages, not a burst of 60 to catch up.
+        for k in 0..100 {
+            p.on_solution(&solution(12_000_000 + k * 10_000), now);
+        }
+        assert_eq!(count(&mut rx, "ODOMETRY"), 30);
+        // A new link generation re-announces the origin.
+        shared.state(|s| s.request_generation += 1);
+        p.on_solution(&solution(14_000_000), now);
+        assert_eq!(shared.counters().origins_sent, 2);
+    }
+
+    #[test]
+    fn the_output_rate_cannot_exceed_the_imu_rate_and_waits_for_the_autopilot_kind() {
+        let (mut p, mut rx, shared) = publisher(30.0, "auto");
+        let now = Instant::now();
+        for k in 0..25 {
+            p.on_solution(&solution(k * 40_000), now);
+        }
+        assert_eq!(
+            count(&mut rx, "GPS_INPUT") + count(&mut rx, "ODOMETRY"),
+            0,
+            "kind unknown"
+        );
+        shared.state(|s| s.autopilot = Some((1, 1, AutopilotKind::Ardupilot)));
+        // 25 Hz solutions for 1 s at a 30 Hz setting: every one published (25), as GPS_INPUT.
+        for k in 25..50 {
+            p.on_solution(&solution(k * 40_000), now);
+        }
+        assert_eq!(count(&mut rx, "GPS_INPUT"), 25);
     }
 }

@@ -303,7 +303,7 @@ pub fn set_message_interval(
 }
 
 #[cfg(test)]
-mod tests {
+pub(crate) mod tests {
     use super::*;
     use crate::ins::{InsCovariance, InsSolution};
     use crate::nav::VisionStatus;
