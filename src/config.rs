@@ -86,6 +86,16 @@ pub enum OutputMode {
     VisionPositionEstimate,
 }
 
+/// The time base of the navigation core's `t_us`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockSource {
+    /// The daemon's monotonic clock, autopilot stamps mapped with TIMESYNC (real vehicles).
+    Daemon,
+    /// The autopilot's own time (a simulated vehicle running faster than real time).
+    Autopilot,
+}
+
 /// Where the outside air temperature for the air data comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
@@ -125,6 +135,9 @@ pub struct MavlinkConfig {
     /// The link is declared lost after this long without any message from the autopilot, s.
     #[serde(default = "default_link_timeout_s")]
     pub link_timeout_s: f64,
+    /// Time base: `daemon` (real vehicle) or `autopilot` (SITL faster than real time).
+    #[serde(default = "default_clock")]
+    pub clock: ClockSource,
     /// Rate of our own TIMESYNC requests, Hz.
     #[serde(default = "default_timesync_rate_hz")]
     pub timesync_rate_hz: f64,
@@ -138,6 +151,9 @@ fn default_component_id() -> u8 {
 }
 fn default_autopilot() -> AutopilotKind {
     AutopilotKind::Auto
+}
+fn default_clock() -> ClockSource {
+    ClockSource::Daemon
 }
 fn default_link_timeout_s() -> f64 {
     3.0

@@ -563,3 +563,50 @@ async fn directory_camera_absent_at_start_then_read_in_name_order() {
     assert_eq!(c.nav.frames, 3);
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn with_the_autopilot_clock_a_vehicle_at_10x_speed_is_navigated_in_its_own_time() {
+    let port = fa::free_udp_port();
+    let text = format!(
+        "[mavlink]\nconnection = \"udpin:127.0.0.1:{port}\"\nclock = \"autopilot\"\n\
+         [output]\nmode = \"odometry\"\nrate_hz = 30.0\n\
+         [navigation]\nmag_decimal_year = 2026.5\n[logging]\ncounters_period_s = 0.0\n"
+    );
+    let (h, task) = start(DaemonConfig::from_toml_str(&text, None).unwrap()).await;
+    let fake = Fake::start(port).await;
+    // 100 Hz IMU and 5 Hz GNSS in vehicle time, 10× faster than real time.
+    fake.ctl.lock().unwrap().time_scale = 10;
+    assert!(
+        wait_for(Duration::from_secs(5), || fake.received(is_odometry).len()
+            > 40)
+        .await
+    );
+    tokio::time::sleep(Duration::from_secs(2)).await;
+    let c = stop(h, task).await;
+    let odo: Vec<apm::ODOMETRY_DATA> = fake
+        .received(is_odometry)
+        .into_iter()
+        .filter_map(|r| match r.msg {
+            apm::MavMessage::ODOMETRY(o) => Some(o),
+            _ => None,
+        })
+        .collect();
+    let (a, b) = (odo[10].clone(), odo.last().unwrap().clone());
+    let dt_vehicle_s = (b.time_usec - a.time_usec) as f64 / 1e6;
+    // Stamps are vehicle time: ~2 s real = ~20 s vehicle between them.
+    assert!(dt_vehicle_s > 10.0, "{dt_vehicle_s} s of vehicle time");
+    // 30 Hz of vehicle time, and the INS integrated vehicle Δt: 30 m/s north.
+    let rate = (odo.len() - 11) as f64 / dt_vehicle_s;
+    assert!(
+        (27.0..=33.0).contains(&rate),
+        "{rate:.1} Hz of vehicle time"
+    );
+    let vn = f64::from(b.x - a.x) / dt_vehicle_s;
+    assert!((vn - 30.0).abs() < 3.0, "north speed {vn:.2} m/s");
+    assert_eq!(c.time_order_rejected, 0);
+    assert_eq!(
+        c.ins.unwrap().imu_gaps,
+        0,
+        "no compressed or stretched IMU steps"
+    );
+}

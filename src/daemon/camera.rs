@@ -74,6 +74,7 @@ async fn frame_stream(
     mut stop: watch::Receiver<bool>,
 ) {
     let shared = out.shared.clone();
+    let autopilot_clock = cfg.mavlink.clock == crate::config::ClockSource::Autopilot;
     let max_backoff = Duration::from_secs_f64(cfg.camera.retry_max_s);
     let silence = Duration::from_secs_f64(3.0 * cfg.camera.timeout_s);
     let mut backoff = Duration::from_millis(200);
@@ -136,8 +137,9 @@ async fn frame_stream(
             let mapped = offset
                 .and_then(|o| i64::try_from(header.t_us).ok()?.checked_add(o))
                 .and_then(|t| u64::try_from(t).ok())
-                // More than 1 s in the future: a bad offset, not a frame.
-                .filter(|t| *t <= now + 1_000_000);
+                // More than 1 s in the future: a bad offset, not a frame (daemon clock only:
+                // a simulated vehicle's clock may run ahead of ours).
+                .filter(|t| autopilot_clock || *t <= now + 1_000_000);
             let Some(t_us) = mapped.filter(|t| last_t_us.is_none_or(|l| *t > l)) else {
                 shared.count(|c| c.frames_refused += 1);
                 continue;

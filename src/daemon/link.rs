@@ -112,7 +112,14 @@ pub(super) async fn reader(
 ) {
     let p = &cfg.ins.position;
     let mut st = ReaderState {
-        ts: TimeSync::new((cfg.mavlink.timesync_max_rtt_ms * 1e6) as u64),
+        ts: {
+            let ts = TimeSync::new((cfg.mavlink.timesync_max_rtt_ms * 1e6) as u64);
+            if cfg.mavlink.clock == crate::config::ClockSource::Autopilot {
+                ts.with_autopilot_clock()
+            } else {
+                ts
+            }
+        },
         dec: InputDecoder::new(DecoderConfig {
             temperature: cfg.input.temperature,
             isa_delta_t_k: cfg.input.isa_delta_t_k,
@@ -290,7 +297,11 @@ async fn handle_raw(
     }
     let ReaderState { ts, dec, .. } = st;
     let evs = dec.decode(&msg, &mut |t| ts.map(t, rx_us));
-    let (dc, tc, offset) = (*st.dec.counters(), *st.ts.counters(), st.ts.offset_us());
+    let (dc, tc, offset) = (
+        *st.dec.counters(),
+        *st.ts.counters(),
+        st.ts.vehicle_offset_us(),
+    );
     shared.count(|c| {
         c.input = dc;
         c.timesync = tc;

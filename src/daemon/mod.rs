@@ -41,7 +41,8 @@ use mavlink::dialects::ardupilotmega as apm;
 pub const EVENT_CHANNEL: usize = 2_048;
 /// Capacity of the outgoing-message queue; beyond it messages are dropped and counted.
 pub const OUTBOX: usize = 256;
-/// A solution older than this (our clock) is not published: the IMU has stopped, µs.
+/// A solution whose IMU message was received longer ago than this is stale (the IMU has
+/// stopped): the heartbeat leaves ACTIVE and the watchdog is not fed, µs.
 pub const MAX_SOLUTION_AGE_US: u64 = 500_000;
 
 /// Why the daemon stopped.
@@ -191,7 +192,7 @@ pub struct State {
     pub last_fix_us: Option<u64>,
     /// Time of the last camera frame, µs.
     pub last_frame_us: Option<u64>,
-    /// Offset our clock − autopilot clock, µs.
+    /// Offset from the vehicle clock to `t_us`, µs (camera frame stamps).
     pub offset_us: Option<i64>,
     /// Origin of the local frame (first fix), and the geoid undulation there.
     pub origin: Option<Geodetic>,
@@ -552,7 +553,10 @@ async fn monitor(
             }
             flags.camera_ok = cam_ok;
         }
-        let running = l.is_some_and(|l| now.saturating_sub(l.sol.ins.t_us) < MAX_SOLUTION_AGE_US);
+        // Fresh = computed from an IMU message received less than 0.5 s ago (real time, so
+        // it also holds with the autopilot clock).
+        let running =
+            l.is_some_and(|l| l.imu_rx.elapsed() < Duration::from_micros(MAX_SOLUTION_AGE_US));
         if l.is_some() && !running {
             // Nothing is published from a stale solution (the publisher runs on new ones).
             shared.count(|c| c.publish_stale += 1);

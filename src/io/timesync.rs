@@ -16,6 +16,10 @@
 //!   newest one seen means the autopilot restarted; the sync is reset and the caller re-requests
 //!   its message intervals. (A sequence-number reset alone is not used: on UDP it also follows
 //!   packet loss and reordering.)
+//! - Autopilot clock ([`TimeSync::with_autopilot_clock`], for a simulated vehicle running
+//!   faster than real time, where the daemon's clock would compress every Δt): `t_us` is the
+//!   autopilot's own time, continued across reboots (each reboot adds the newest time seen
+//!   before it); unstamped messages take the newest clock-message stamp.
 //! - [`MonotonicGate`]: per sensor kind, mapped times must strictly increase; duplicates and
 //!   out-of-order samples are rejected and counted.
 
@@ -73,6 +77,10 @@ pub struct TimeSync {
     /// Newest clock-message stamp, µs of autopilot boot time.
     newest_ap_us: Option<u64>,
     counters: TimeSyncCounters,
+    /// Use the autopilot's time as `t_us` (plus `epoch_us`).
+    autopilot_clock: bool,
+    /// Sum of the autopilot times reached before each reboot, µs.
+    epoch_us: u64,
 }
 
 impl TimeSync {
@@ -86,6 +94,24 @@ impl TimeSync {
             envelope_us: None,
             newest_ap_us: None,
             counters: TimeSyncCounters::default(),
+            autopilot_clock: false,
+            epoch_us: 0,
+        }
+    }
+
+    /// Map to the autopilot's own (reboot-continued) time instead of the daemon's clock.
+    pub fn with_autopilot_clock(mut self) -> Self {
+        self.autopilot_clock = true;
+        self
+    }
+
+    /// The offset that maps a vehicle time (camera frame stamps) to `t_us`: the TIMESYNC /
+    /// envelope offset, or the reboot epoch with the autopilot clock.
+    pub fn vehicle_offset_us(&self) -> Option<i64> {
+        if self.autopilot_clock {
+            i64::try_from(self.epoch_us).ok()
+        } else {
+            self.offset_us()
         }
     }
 
@@ -192,6 +218,8 @@ impl TimeSync {
             && ap_us.saturating_add(REBOOT_BACKSTEP_US) < newest
         {
             self.counters.reboots += 1;
+            // Autopilot clock: continue after the last time of the previous boot.
+            self.epoch_us = self.epoch_us.saturating_add(newest + 1);
             self.offset_ns = None;
             self.n = 0;
             self.consecutive_outliers = 0;
@@ -211,6 +239,18 @@ impl TimeSync {
     /// Map a message stamp received at `rx_us` to the daemon's clock, µs. `None` when no
     /// offset is known yet or the result is implausible (counted).
     pub fn map(&mut self, t: ApTime, rx_us: u64) -> Option<u64> {
+        if self.autopilot_clock {
+            let newest = self.newest_ap_us.map(|n| n.saturating_add(self.epoch_us));
+            return match t {
+                ApTime::Receipt => newest,
+                ApTime::BootUs(u) if u >= UNIX_STAMP_US => {
+                    self.counters.unix_stamps += 1;
+                    newest
+                }
+                ApTime::BootUs(u) => Some(u.saturating_add(self.epoch_us)),
+                ApTime::BootMs(m) => Some((u64::from(m) * 1_000).saturating_add(self.epoch_us)),
+            };
+        }
         let ap_us = match t {
             ApTime::Receipt => return Some(rx_us),
             ApTime::BootUs(u) => u,
@@ -394,6 +434,28 @@ mod tests {
         assert_eq!(ts.counters().reboots, 1);
         assert_eq!(ts.offset_us(), Some(20_000_000));
         assert!(!ts.observe_clock(10_000, 20_010_500));
+    }
+
+    #[test]
+    fn the_autopilot_clock_is_used_as_is_and_continued_across_a_reboot() {
+        let mut ts = TimeSync::new(10 * MS).with_autopilot_clock();
+        assert_eq!(ts.map(ApTime::Receipt, 5), None, "no clock message yet");
+        // The vehicle runs 10× faster than our clock: its times are used unchanged.
+        for k in 0..30_u64 {
+            assert!(!ts.observe_clock(k * 100_000, 1_000_000 + k * 10_000));
+        }
+        assert_eq!(ts.map(ApTime::BootUs(2_900_000), 0), Some(2_900_000));
+        assert_eq!(ts.map(ApTime::BootMs(3_000), 0), Some(3_000_000));
+        assert_eq!(
+            ts.map(ApTime::Receipt, 0),
+            Some(2_900_000),
+            "newest clock stamp"
+        );
+        assert_eq!(ts.vehicle_offset_us(), Some(0));
+        // Reboot at 2.9 s: the new boot's time 0 continues at 2.9 s + 1 µs.
+        assert!(ts.observe_clock(0, 2_000_000));
+        assert_eq!(ts.map(ApTime::BootUs(0), 0), Some(2_900_001));
+        assert_eq!(ts.vehicle_offset_us(), Some(2_900_001));
     }
 
     #[test]

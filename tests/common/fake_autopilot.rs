@@ -56,6 +56,8 @@ pub struct Ctl {
     pub reboot: bool,
     /// GNSS has no fix.
     pub gnss_off: bool,
+    /// Vehicle time runs this many times faster than real time (0 or 1: real time).
+    pub time_scale: u64,
     /// Messages sent, by kind.
     pub imu_sent: u64,
     pub gnss_sent: u64,
@@ -180,7 +182,8 @@ impl Fake {
     }
 
     pub fn boot_us(&self) -> u64 {
-        self.boot.lock().unwrap().elapsed().as_micros() as u64
+        let scale = self.ctl.lock().unwrap().time_scale.max(1);
+        self.boot.lock().unwrap().elapsed().as_micros() as u64 * scale
     }
 
     pub async fn send(&self, msg: &apm::MavMessage) {
@@ -221,7 +224,8 @@ impl Fake {
                     if let apm::MavMessage::TIMESYNC(t) = &msg {
                         // A lost link is lost both ways.
                         if t.tc1 == 0 && !ctl.lock().unwrap().silent {
-                            let now_ns = boot.lock().unwrap().elapsed().as_nanos() as i64;
+                            let scale = ctl.lock().unwrap().time_scale.max(1) as i64;
+                            let now_ns = boot.lock().unwrap().elapsed().as_nanos() as i64 * scale;
                             let reply = apm::MavMessage::TIMESYNC(apm::TIMESYNC_DATA {
                                 tc1: now_ns,
                                 ts1: t.ts1,
@@ -264,33 +268,56 @@ impl Fake {
             tick.set_missed_tick_behavior(tokio::time::MissedTickBehavior::Burst);
             let t0 = Instant::now();
             let mut k: u64 = 0;
+            // Vehicle (boot) time up to which samples have been sent, µs.
+            let mut sent_to_us: Option<u64> = None;
+            let p_pa = atmosphere::pressure_pa(H0_M);
+            let temp_k = atmosphere::isa_temperature_k(H0_M);
             loop {
                 tick.tick().await;
                 k += 1;
-                let (per_tick, silent, gnss_off) = {
+                let (per_tick, silent, gnss_off, scale) = {
                     let mut c = ctl.lock().unwrap();
                     if c.reboot {
                         c.reboot = false;
                         *boot.lock().unwrap() = Instant::now();
                         *seq.lock().unwrap() = 0;
+                        sent_to_us = None;
                     }
-                    (c.imu_per_tick, c.silent, c.gnss_off)
+                    (
+                        c.imu_per_tick.max(1),
+                        c.silent,
+                        c.gnss_off,
+                        c.time_scale.max(1),
+                    )
                 };
                 if silent {
+                    sent_to_us = None;
                     continue;
                 }
-                let boot_at = *boot.lock().unwrap();
+                // Vehicle time runs `scale` times faster than real time.
+                let now_us = boot.lock().unwrap().elapsed().as_micros() as u64 * scale;
+                let from_us = sent_to_us.unwrap_or(now_us.saturating_sub(10_000 * scale));
+                sent_to_us = Some(now_us);
                 // Flight time since the stream started (continuous across a "reboot").
-                let t = t0.elapsed().as_secs_f64();
-                let pos = position(t);
-                let mut out: Vec<apm::MavMessage> = Vec::new();
-                let now_us = boot_at.elapsed().as_micros() as u64;
-                let p_pa = atmosphere::pressure_pa(H0_M);
-                let temp_k = atmosphere::isa_temperature_k(H0_M);
+                let pos = position(t0.elapsed().as_secs_f64() * scale as f64);
                 let b_n = mag_model.field_ned_nt(&pos).unwrap();
-                for j in 0..per_tick.max(1) {
-                    let dt_us = 10_000 / u64::from(per_tick.max(1));
-                    let t_us = now_us.saturating_sub(10_000 - dt_us * u64::from(j + 1));
+                // Grid points of a period in (from, now].
+                let grid = |period: u64, phase: u64| {
+                    let first = (from_us + period - phase) / period * period + phase;
+                    let first = if first <= from_us {
+                        first + period
+                    } else {
+                        first
+                    };
+                    (0..)
+                        .map(move |i| first + i * period)
+                        .take_while(move |t| *t <= now_us)
+                };
+                let mut out: Vec<apm::MavMessage> = Vec::new();
+                let imu_period = 10_000 / u64::from(per_tick);
+                let mut n_imu = 0;
+                for t_us in grid(imu_period, 0) {
+                    n_imu += 1;
                     out.push(apm::MavMessage::HIGHRES_IMU(apm::HIGHRES_IMU_DATA {
                         time_usec: t_us,
                         xacc: 0.0,
@@ -311,8 +338,8 @@ impl Fake {
                         id: 0,
                     }));
                 }
-                ctl.lock().unwrap().imu_sent += u64::from(per_tick.max(1));
-                if k.is_multiple_of(10) {
+                ctl.lock().unwrap().imu_sent += n_imu;
+                for t_us in grid(100_000, 0) {
                     let rho = atmosphere::density_kgpm3(p_pa, temp_k);
                     let eas = SPEED_MPS * (rho / 1.225).sqrt();
                     out.push(apm::MavMessage::VFR_HUD(apm::VFR_HUD_DATA {
@@ -324,14 +351,14 @@ impl Fake {
                         climb: 0.0,
                     }));
                     out.push(apm::MavMessage::ATTITUDE(apm::ATTITUDE_DATA {
-                        time_boot_ms: (now_us / 1000) as u32,
+                        time_boot_ms: (t_us / 1000) as u32,
                         ..Default::default()
                     }));
                 }
-                if k % 20 == 5 {
+                for t_us in grid(200_000, 50_000) {
                     out.push(apm::MavMessage::GLOBAL_POSITION_INT(
                         apm::GLOBAL_POSITION_INT_DATA {
-                            time_boot_ms: (now_us / 1000) as u32,
+                            time_boot_ms: (t_us / 1000) as u32,
                             lat: (pos.lat_rad.to_degrees() * 1e7) as i32,
                             lon: (pos.lon_rad.to_degrees() * 1e7) as i32,
                             alt: ((H0_M - GEOID_M) * 1e3) as i32,
@@ -340,7 +367,7 @@ impl Fake {
                         },
                     ));
                     out.push(apm::MavMessage::GPS_RAW_INT(apm::GPS_RAW_INT_DATA {
-                        time_usec: now_us,
+                        time_usec: t_us,
                         fix_type: if gnss_off {
                             apm::GpsFixType::GPS_FIX_TYPE_NO_FIX
                         } else {
