@@ -15,6 +15,7 @@
 //!   taken as equivalent airspeed (the compressibility correction CAS→EAS is < 0.4 % below
 //!   Mach 0.3 and 3 km) and converted to true airspeed with the density from the static
 //!   pressure and temperature: `tas = eas · √(ρ₀ / ρ)`, `ρ = p / (R T)`.
+//!   AIRSPEED is preferred: VFR_HUD's airspeed is ignored while AIRSPEED arrived within 1 s.
 //! - AOA_SSA: degrees.
 //! - One IMU source at a time: HIGHRES_IMU over SCALED_IMU over RAW_IMU. A lower-priority IMU
 //!   message is ignored (counted) while a higher-priority one arrived within
@@ -186,6 +187,8 @@ pub struct InputDecoder {
     undulation_m: Option<f64>,
     /// Last time of each IMU message type: HIGHRES_IMU, SCALED_IMU, RAW_IMU, µs.
     imu_seen_us: [Option<u64>; 3],
+    /// Last AIRSPEED message, µs (VFR_HUD's airspeed is ignored while it streams).
+    airspeed_msg_us: Option<u64>,
 }
 
 /// Events decoded from one message (at most IMU + magnetometer + air data).
@@ -229,6 +232,7 @@ impl InputDecoder {
             attitude: None,
             undulation_m: None,
             imu_seen_us: [None; 3],
+            airspeed_msg_us: None,
         }
     }
 
@@ -259,6 +263,7 @@ impl InputDecoder {
         self.vz = None;
         self.attitude = None;
         self.imu_seen_us = [None; 3];
+        self.airspeed_msg_us = None;
     }
 
     /// Note an IMU message of `priority` (0 = best) at `t_us`; `false` if a better one is
@@ -384,10 +389,18 @@ impl InputDecoder {
             M::AIRSPEED(m) => {
                 let t_us = map(ApTime::Receipt).ok_or(Reject::Time)?;
                 self.eas = Some((t_us, check_airspeed(f64::from(m.airspeed))?));
+                self.airspeed_msg_us = Some(t_us);
                 Ok(())
             }
             M::VFR_HUD(m) => {
                 let t_us = map(ApTime::Receipt).ok_or(Reject::Time)?;
+                // AIRSPEED (the sensor) is preferred while it streams.
+                if self
+                    .airspeed_msg_us
+                    .is_some_and(|t| t_us.abs_diff(t) <= IMU_SOURCE_HOLD_US)
+                {
+                    return Ok(());
+                }
                 self.eas = Some((t_us, check_airspeed(f64::from(m.airspeed))?));
                 Ok(())
             }
@@ -695,6 +708,8 @@ mod tests {
             }),
             &mut map,
         );
+        // A VFR_HUD airspeed while AIRSPEED streams is ignored.
+        d.decode(&vfr(99.0), &mut map);
         let ev = d.decode(&apm::MavMessage::SCALED_PRESSURE(m), &mut map);
         let SensorEvent::Air(air) = &ev[0] else {
             panic!("{ev:?}")
