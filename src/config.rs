@@ -570,12 +570,30 @@ impl DaemonConfig {
                     ));
                 }
             }
-            CameraSourceKind::V4l2 | CameraSourceKind::Gstreamer => {
+            CameraSourceKind::V4l2 | CameraSourceKind::Gstreamer if !cfg!(feature = "opencv") => {
                 return Err(invalid(
                     "camera.source",
                     format!("{:?}", c.source).to_lowercase(),
                     "requires the `opencv` feature, which this build does not have",
                 ));
+            }
+            CameraSourceKind::V4l2 => {
+                if c.device.is_empty() {
+                    return Err(invalid(
+                        "camera.device",
+                        "\"\"",
+                        "must name a device (e.g. /dev/video0) with camera.source = \"v4l2\"",
+                    ));
+                }
+            }
+            CameraSourceKind::Gstreamer => {
+                if c.pipeline.is_empty() {
+                    return Err(invalid(
+                        "camera.pipeline",
+                        "\"\"",
+                        "must be a pipeline ending in an appsink with camera.source = \"gstreamer\"",
+                    ));
+                }
             }
         }
         in_range("camera.rate_hz", c.rate_hz, 0.1, 100.0)?;
@@ -736,10 +754,14 @@ mod tests {
         assert!(e.starts_with("input.imu_rate_hz = 10:"), "{e}");
         let e = error(&format!("{MINIMAL}[camera]\nsource = \"frame_stream\"\n"));
         assert!(e.starts_with("camera.address"), "{e}");
-        let e = error(&format!(
-            "{MINIMAL}[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n"
-        ));
-        assert!(e.contains("opencv"), "{e}");
+        let v4l2 = format!("{MINIMAL}[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n");
+        if cfg!(feature = "opencv") {
+            assert!(parse(&v4l2).is_ok());
+            let e = error(&format!("{MINIMAL}[camera]\nsource = \"gstreamer\"\n"));
+            assert!(e.starts_with("camera.pipeline"), "{e}");
+        } else {
+            assert!(error(&v4l2).contains("opencv"));
+        }
         let e = error(&MINIMAL.replace("[output]", "refuse_unsigned = true\n[output]"));
         assert!(e.starts_with("mavlink.refuse_unsigned"), "{e}");
         let e = error(&MINIMAL.replace("[output]", "signing_key = \"abc\"\n[output]"));

@@ -11,7 +11,8 @@
 //!   whose stem is an integer is shown at that many µs after the first such file; otherwise
 //!   frames are paced at `camera.rate_hz`. Frames are stamped with the daemon's clock when
 //!   emitted (no autopilot clock is involved). The directory is read once.
-//! - `v4l2` / `gstreamer` need the `opencv` feature (refused by the configuration check).
+//! - `v4l2` / `gstreamer`: OpenCV `VideoCapture` on its own thread ([`super::camera_cv`]),
+//!   with the `opencv` feature (without it the configuration check refuses them).
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -43,20 +44,29 @@ pub(super) async fn run(
     match cfg.camera.source {
         CameraSourceKind::FrameStream => frame_stream(cfg, clock, out, stop).await,
         CameraSourceKind::Directory => directory(cfg, clock, out, stop).await,
+        #[cfg(feature = "opencv")]
+        CameraSourceKind::V4l2 | CameraSourceKind::Gstreamer => {
+            let capture = tokio::task::spawn_blocking(move || {
+                super::camera_cv::run_blocking(cfg, clock, out, stop);
+            });
+            if let Err(e) = capture.await {
+                tracing::error!("camera capture thread failed: {e}");
+            }
+        }
         // No camera, or a source this build cannot open (refused by the configuration).
         _ => {}
     }
 }
 
 /// Where frames go.
-struct Out {
+pub(super) struct Out {
     frames: Arc<FrameQueue>,
     wake: mpsc::Sender<NavInput>,
-    shared: Arc<Shared>,
+    pub(super) shared: Arc<Shared>,
 }
 
 impl Out {
-    fn deliver(&self, f: Frame, now_us: u64) {
+    pub(super) fn deliver(&self, f: Frame, now_us: u64) {
         let dropped = self.frames.push(f);
         self.shared.count(|c| {
             c.frames_received += 1;

@@ -16,6 +16,8 @@
 //! core sees and every `time_usec` sent is on it.
 
 pub mod camera;
+#[cfg(feature = "opencv")]
+pub mod camera_cv;
 pub mod link;
 pub mod nav_thread;
 pub mod notify;
