@@ -398,6 +398,13 @@ impl<O: ianav_sim::flight::FlightObserver> ianav_sim::flight::FlightObserver for
     ) {
         self.inner.estimate_sample(truth, estimate);
     }
+    fn nav_solution(
+        &mut self,
+        truth: &ianav_sim::flight::TruthSample,
+        solution: &ianav::ins::InsSolution,
+    ) {
+        self.inner.nav_solution(truth, solution);
+    }
     fn operation_started(
         &mut self,
         t_s: f64,

@@ -59,9 +59,18 @@ fn run_writes_report_trajectory_sensors_and_plots() {
         "altitude.png",
         "airspeed.png",
         "attitude.png",
+        "navigation.csv",
+        "nav_attitude_error.png",
+        "nav_position_error.png",
     ] {
         assert!(out_dir.join(file).is_file(), "missing {file}");
     }
+    // The INS solution against the truth at 10 Hz from its start in the warm-up.
+    let nav_rows = std::fs::read_to_string(out_dir.join("navigation.csv"))
+        .unwrap()
+        .lines()
+        .count();
+    assert!((1 + 200..=1 + 700).contains(&nav_rows), "{nav_rows} rows");
     // 70 s of flight (50 s warm-up + 20 s) at 10 Hz, plus the header.
     let rows = std::fs::read_to_string(out_dir.join("truth.csv"))
         .unwrap()
