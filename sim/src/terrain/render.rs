@@ -1093,17 +1093,27 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
             for col in (1..wu.saturating_sub(1)).step_by(2) {
                 if !blk.set_mid(base + col, base + col - 1, base + col + 1) {
                     let guess = predict(above(blk, col, 1), above(blk, col, 2), &Pred::default());
-                    let sol = solve_ray(
-                        &rays.at(col as f64),
-                        self.scene,
-                        guess,
-                        &mut Pred::default(),
-                        st,
-                    );
-                    blk.set(base + col, sol);
+                    blk.set(base + col, self.solve_alone(&rays, col, guess, st));
                 }
             }
         }
+    }
+
+    /// A pixel between two solved ones that could not take their midpoint (one is sky).
+    fn solve_alone(
+        &self,
+        rays: &RowRays,
+        col: usize,
+        guess: Option<f64>,
+        st: &mut RenderStats,
+    ) -> (f64, f64, f64) {
+        solve_ray(
+            &rays.at(col as f64),
+            self.scene,
+            guess,
+            &mut Pred::default(),
+            st,
+        )
     }
 
     /// Rows `0, 2, 4, …` of the block (image rows from `v0`) solved by [`Self::solve_row`],
@@ -1137,14 +1147,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
                 if !blk.set_mid(k, k - wu, k + wu) {
                     let rays = rays.get_or_insert_with(|| (self.rays_of_row)((v0 + r) as f64));
                     let guess = predict(blk.t[k - wu], f64::NAN, &Pred::default());
-                    let sol = solve_ray(
-                        &rays.at(col as f64),
-                        self.scene,
-                        guess,
-                        &mut Pred::default(),
-                        st,
-                    );
-                    blk.set(k, sol);
+                    blk.set(k, self.solve_alone(rays, col, guess, st));
                 }
             }
         }
