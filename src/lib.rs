@@ -8,6 +8,8 @@
 //! ECEF `E`, NED `N`, body `B`, camera `C`; Hamilton quaternions with `v_a = q_ab * v_b`;
 //! right perturbations `X ⊕ τ = X ∘ Exp(τ)`; SI units and radians; time in `t_us: u64`.
 
+pub mod config;
+pub mod daemon;
 pub mod env;
 pub mod ins;
 pub mod io;

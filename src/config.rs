@@ -1,0 +1,800 @@
+//! Daemon configuration (`config/ianav.toml`; issue 5 "Configuration", research/mavlink.md
+//! §6.3): the MAVLink link, what to request from and publish to the autopilot, the camera
+//! source, the INS configuration and logging. Unknown keys and out-of-range values are errors
+//! that name the key (`output.rate_hz = 500: must be in [1, 200]`).
+
+use std::path::{Path, PathBuf};
+
+use serde::Deserialize;
+
+use crate::ins::{InsConfig, InsConfigError};
+
+/// Why a configuration was rejected.
+#[derive(Debug, thiserror::Error)]
+pub enum ConfigError {
+    /// The file could not be read.
+    #[error("{path}: {source}")]
+    Read {
+        /// The file.
+        path: PathBuf,
+        /// The I/O error.
+        source: std::io::Error,
+    },
+    /// Not TOML, a wrong type, or an unknown key (the TOML error names it and its line).
+    #[error("{0}")]
+    Toml(#[from] toml::de::Error),
+    /// A value outside its domain.
+    #[error("{key} = {value}: {reason}")]
+    Invalid {
+        /// Dotted key.
+        key: String,
+        /// The rejected value, as written.
+        value: String,
+        /// What it must satisfy.
+        reason: String,
+    },
+    /// The INS configuration (inline `[ins]` or the file named by `navigation.ins_config`).
+    #[error("{context}: {source}")]
+    Ins {
+        /// Where the INS configuration came from.
+        context: String,
+        /// The INS error (it names the INS key).
+        source: InsConfigError,
+    },
+}
+
+fn invalid(key: &str, value: impl std::fmt::Display, reason: impl Into<String>) -> ConfigError {
+    ConfigError::Invalid {
+        key: key.to_owned(),
+        value: value.to_string(),
+        reason: reason.into(),
+    }
+}
+
+fn in_range(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
+    if v.is_finite() && (lo..=hi).contains(&v) {
+        Ok(())
+    } else {
+        Err(invalid(key, v, format!("must be in [{lo}, {hi}]")))
+    }
+}
+
+/// Which autopilot firmware the daemon talks to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AutopilotKind {
+    /// Learn it from the autopilot's HEARTBEAT (`autopilot` field).
+    Auto,
+    /// PX4 (MAV_AUTOPILOT_PX4).
+    Px4,
+    /// ArduPilot (MAV_AUTOPILOT_ARDUPILOTMEGA).
+    Ardupilot,
+}
+
+/// What the daemon publishes.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum OutputMode {
+    /// Pick from the autopilot kind: `odometry` for PX4, `gps_input` for ArduPilot.
+    Auto,
+    /// ODOMETRY in the autopilot's local NED frame (PX4 external vision, 30–50 Hz), with
+    /// SET_GPS_GLOBAL_ORIGIN.
+    Odometry,
+    /// GPS_INPUT as a MAVLink GPS instance (ArduPilot `GPSn_TYPE = 14`, 5–10 Hz).
+    GpsInput,
+    /// VISION_POSITION_ESTIMATE in the local NED frame (ArduPilot ExtNav, PX4 EV).
+    VisionPositionEstimate,
+}
+
+/// The time base of the navigation core's `t_us`.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ClockSource {
+    /// The daemon's monotonic clock, autopilot stamps mapped with TIMESYNC (real vehicles).
+    Daemon,
+    /// The autopilot's own time (a simulated vehicle running faster than real time).
+    Autopilot,
+}
+
+/// Where the outside air temperature for the air data comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TemperatureSource {
+    /// The temperature the autopilot reports with the static pressure (SCALED_PRESSURE,
+    /// HIGHRES_IMU): right for an outside-air probe, biased warm for a sensor in the fuselage.
+    Sensor,
+    /// ISA temperature at the measured pressure altitude plus `air.isa_delta_t_k`.
+    Isa,
+}
+
+/// `[mavlink]`: the link to the autopilot.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct MavlinkConfig {
+    /// `udpin:IP:PORT`, `udpout:IP:PORT`, `tcpin:IP:PORT`, `tcpout:IP:PORT` or
+    /// `serial:DEVICE:BAUD`.
+    pub connection: String,
+    /// Our system id; 0 = adopt the autopilot's once its HEARTBEAT is seen.
+    #[serde(default)]
+    pub system_id: u8,
+    /// Our component id (197 = MAV_COMP_ID_VISUAL_INERTIAL_ODOMETRY).
+    #[serde(default = "default_component_id")]
+    pub component_id: u8,
+    /// Autopilot firmware.
+    #[serde(default = "default_autopilot")]
+    pub autopilot: AutopilotKind,
+    /// MAVLink 2 signing key: 64 hex digits or the base64 of 32 bytes. Empty = no signing.
+    #[serde(default)]
+    pub signing_key: String,
+    /// Signing link id of our outgoing frames.
+    #[serde(default)]
+    pub signing_link_id: u8,
+    /// With a signing key: refuse unsigned (and MAVLink 1) input.
+    #[serde(default)]
+    pub refuse_unsigned: bool,
+    /// The link is declared lost after this long without any message from the autopilot, s.
+    #[serde(default = "default_link_timeout_s")]
+    pub link_timeout_s: f64,
+    /// Time base: `daemon` (real vehicle) or `autopilot` (SITL faster than real time).
+    #[serde(default = "default_clock")]
+    pub clock: ClockSource,
+    /// Rate of our own TIMESYNC requests, Hz.
+    #[serde(default = "default_timesync_rate_hz")]
+    pub timesync_rate_hz: f64,
+    /// TIMESYNC round trips longer than this are not used, ms.
+    #[serde(default = "default_timesync_max_rtt_ms")]
+    pub timesync_max_rtt_ms: f64,
+}
+
+fn default_component_id() -> u8 {
+    197
+}
+fn default_autopilot() -> AutopilotKind {
+    AutopilotKind::Auto
+}
+fn default_clock() -> ClockSource {
+    ClockSource::Daemon
+}
+fn default_link_timeout_s() -> f64 {
+    3.0
+}
+fn default_timesync_rate_hz() -> f64 {
+    5.0
+}
+fn default_timesync_max_rtt_ms() -> f64 {
+    10.0
+}
+
+/// `[input]`: message rates requested with MAV_CMD_SET_MESSAGE_INTERVAL (0 = do not request).
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct InputConfig {
+    /// HIGHRES_IMU (PX4) or SCALED_IMU / RAW_IMU (ArduPilot), Hz. The INS runs on 25–200 Hz.
+    #[serde(default = "default_imu_rate_hz")]
+    pub imu_rate_hz: f64,
+    /// SCALED_PRESSURE, AIRSPEED / VFR_HUD and AOA_SSA, Hz.
+    #[serde(default = "default_air_rate_hz")]
+    pub air_rate_hz: f64,
+    /// GPS_RAW_INT and GLOBAL_POSITION_INT, Hz.
+    #[serde(default = "default_gnss_rate_hz")]
+    pub gnss_rate_hz: f64,
+    /// ATTITUDE (for the INS initialisation), Hz.
+    #[serde(default = "default_attitude_rate_hz")]
+    pub attitude_rate_hz: f64,
+    /// Outside air temperature source.
+    #[serde(default = "default_temperature")]
+    pub temperature: TemperatureSource,
+    /// ISA temperature offset used with `temperature = "isa"`, K.
+    #[serde(default)]
+    pub isa_delta_t_k: f64,
+    /// GNSS is declared lost after this long without a valid 3D fix, s.
+    #[serde(default = "default_gnss_loss_timeout_s")]
+    pub gnss_loss_timeout_s: f64,
+}
+
+fn default_imu_rate_hz() -> f64 {
+    100.0
+}
+fn default_air_rate_hz() -> f64 {
+    25.0
+}
+fn default_gnss_rate_hz() -> f64 {
+    5.0
+}
+fn default_attitude_rate_hz() -> f64 {
+    10.0
+}
+fn default_temperature() -> TemperatureSource {
+    TemperatureSource::Sensor
+}
+fn default_gnss_loss_timeout_s() -> f64 {
+    2.0
+}
+
+impl Default for InputConfig {
+    fn default() -> Self {
+        Self {
+            imu_rate_hz: default_imu_rate_hz(),
+            air_rate_hz: default_air_rate_hz(),
+            gnss_rate_hz: default_gnss_rate_hz(),
+            attitude_rate_hz: default_attitude_rate_hz(),
+            temperature: default_temperature(),
+            isa_delta_t_k: 0.0,
+            gnss_loss_timeout_s: default_gnss_loss_timeout_s(),
+        }
+    }
+}
+
+/// `[output]`: what is published, how often.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct OutputConfig {
+    /// Message kind.
+    #[serde(default = "default_mode")]
+    pub mode: OutputMode,
+    /// Publication rate, Hz (PX4 ODOMETRY 30–50, ArduPilot GPS_INPUT 5–10).
+    pub rate_hz: f64,
+    /// GPS_INPUT `gps_id`: 0 = GPS1, 1 = GPS2 (keep the real receiver on GPS1).
+    #[serde(default = "default_gps_id")]
+    pub gps_id: u8,
+    /// GPS_INPUT `satellites_visible` (ArduPilot wants ≥ 6 for a usable fix).
+    #[serde(default = "default_satellites")]
+    pub satellites_visible: u8,
+    /// GPS − UTC leap seconds for GPS_INPUT's week and ms (18 since 2017).
+    #[serde(default = "default_leap_seconds")]
+    pub gps_leap_seconds: u8,
+    /// Send SET_GPS_GLOBAL_ORIGIN (the first GNSS fix) with ODOMETRY / VISION output.
+    #[serde(default = "default_true")]
+    pub set_origin: bool,
+}
+
+fn default_mode() -> OutputMode {
+    OutputMode::Auto
+}
+fn default_gps_id() -> u8 {
+    1
+}
+fn default_satellites() -> u8 {
+    10
+}
+fn default_leap_seconds() -> u8 {
+    18
+}
+fn default_true() -> bool {
+    true
+}
+
+/// Camera source kind.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum CameraSourceKind {
+    /// No camera (INS only).
+    None,
+    /// The simulator's frame stream (`io::frame_stream`) over TCP at `camera.address`.
+    FrameStream,
+    /// PNG / PGM files of `camera.path` in name order.
+    Directory,
+    /// A V4L2 device (`camera.device`): needs the `opencv` feature.
+    V4l2,
+    /// A GStreamer pipeline (`camera.pipeline`): needs the `opencv` feature.
+    Gstreamer,
+}
+
+/// `[camera]`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct CameraConfig {
+    /// Source kind.
+    #[serde(default = "default_camera_source")]
+    pub source: CameraSourceKind,
+    /// `host:port` of the frame stream.
+    #[serde(default)]
+    pub address: String,
+    /// Directory of images.
+    #[serde(default)]
+    pub path: String,
+    /// Frame rate assumed for directory images whose name carries no timestamp, Hz.
+    #[serde(default = "default_camera_rate_hz")]
+    pub rate_hz: f64,
+    /// V4L2 device.
+    #[serde(default)]
+    pub device: String,
+    /// GStreamer pipeline ending in an appsink.
+    #[serde(default)]
+    pub pipeline: String,
+    /// Frames waiting for the navigation thread; older ones are dropped beyond this.
+    #[serde(default = "default_frame_queue")]
+    pub queue_frames: usize,
+    /// Longest wait between reconnection attempts, s.
+    #[serde(default = "default_retry_max_s")]
+    pub retry_max_s: f64,
+    /// The camera is declared lost after this long without a frame, s.
+    #[serde(default = "default_camera_timeout_s")]
+    pub timeout_s: f64,
+}
+
+fn default_camera_source() -> CameraSourceKind {
+    CameraSourceKind::None
+}
+fn default_camera_rate_hz() -> f64 {
+    10.0
+}
+fn default_frame_queue() -> usize {
+    4
+}
+fn default_retry_max_s() -> f64 {
+    5.0
+}
+fn default_camera_timeout_s() -> f64 {
+    2.0
+}
+
+impl Default for CameraConfig {
+    fn default() -> Self {
+        Self {
+            source: default_camera_source(),
+            address: String::new(),
+            path: String::new(),
+            rate_hz: default_camera_rate_hz(),
+            device: String::new(),
+            pipeline: String::new(),
+            queue_frames: default_frame_queue(),
+            retry_max_s: default_retry_max_s(),
+            timeout_s: default_camera_timeout_s(),
+        }
+    }
+}
+
+/// `[navigation]`.
+#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[serde(deny_unknown_fields)]
+pub struct NavigationConfig {
+    /// Path of an INS configuration (`config/ins.toml` format), relative to this file's
+    /// directory. Empty: the inline `[ins]` table, or the defaults.
+    #[serde(default)]
+    pub ins_config: String,
+    /// Epoch of the magnetic model, decimal year; 0 = from the system clock at start.
+    #[serde(default)]
+    pub mag_decimal_year: f64,
+}
+
+/// `[logging]`.
+#[derive(Debug, Clone, PartialEq, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct LoggingConfig {
+    /// `tracing` filter (`error`, `warn`, `info`, `debug`, `trace`, or an env-filter
+    /// directive); `RUST_LOG` overrides it.
+    #[serde(default = "default_level")]
+    pub level: String,
+    /// Period of the counter summary in the log, s (0 = never).
+    #[serde(default = "default_counters_period_s")]
+    pub counters_period_s: f64,
+}
+
+fn default_level() -> String {
+    "info".to_owned()
+}
+fn default_counters_period_s() -> f64 {
+    10.0
+}
+
+impl Default for LoggingConfig {
+    fn default() -> Self {
+        Self {
+            level: default_level(),
+            counters_period_s: default_counters_period_s(),
+        }
+    }
+}
+
+/// The whole file as written.
+#[derive(Debug, Clone, Deserialize)]
+#[serde(deny_unknown_fields)]
+struct RawConfig {
+    mavlink: MavlinkConfig,
+    #[serde(default)]
+    input: InputConfig,
+    output: OutputConfig,
+    #[serde(default)]
+    camera: CameraConfig,
+    #[serde(default)]
+    navigation: NavigationConfig,
+    #[serde(default)]
+    ins: Option<toml::Table>,
+    #[serde(default)]
+    logging: LoggingConfig,
+}
+
+/// A validated daemon configuration.
+#[derive(Debug, Clone, PartialEq)]
+pub struct DaemonConfig {
+    /// `[mavlink]`.
+    pub mavlink: MavlinkConfig,
+    /// `[input]`.
+    pub input: InputConfig,
+    /// `[output]`.
+    pub output: OutputConfig,
+    /// `[camera]`.
+    pub camera: CameraConfig,
+    /// `[navigation]`.
+    pub navigation: NavigationConfig,
+    /// The INS configuration (from `navigation.ins_config`, `[ins]`, or the defaults).
+    pub ins: InsConfig,
+    /// `[logging]`.
+    pub logging: LoggingConfig,
+    /// The decoded signing key.
+    pub signing_key: Option<[u8; 32]>,
+}
+
+impl DaemonConfig {
+    /// Read and validate a file; `navigation.ins_config` is resolved against its directory.
+    pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
+        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+            path: path.to_owned(),
+            source,
+        })?;
+        Self::from_toml_str(&text, path.parent())
+    }
+
+    /// Parse and validate TOML text; `base_dir` resolves a relative `navigation.ins_config`.
+    pub fn from_toml_str(text: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
+        let raw: RawConfig = toml::from_str(text)?;
+        let ins = match (&raw.ins, raw.navigation.ins_config.is_empty()) {
+            (Some(_), false) => {
+                return Err(invalid(
+                    "navigation.ins_config",
+                    format!("{:?}", raw.navigation.ins_config),
+                    "give either navigation.ins_config or an [ins] table, not both",
+                ));
+            }
+            (Some(table), true) => {
+                let text = toml::to_string(table)
+                    .map_err(|e| invalid("ins", "[table]", format!("cannot re-serialise: {e}")))?;
+                InsConfig::from_toml_str(&text).map_err(|source| ConfigError::Ins {
+                    context: "[ins]".to_owned(),
+                    source,
+                })?
+            }
+            (None, false) => {
+                let p = Path::new(&raw.navigation.ins_config);
+                let p = match base_dir {
+                    Some(dir) if p.is_relative() => dir.join(p),
+                    _ => p.to_owned(),
+                };
+                let text = std::fs::read_to_string(&p).map_err(|source| ConfigError::Read {
+                    path: p.clone(),
+                    source,
+                })?;
+                InsConfig::from_toml_str(&text).map_err(|source| ConfigError::Ins {
+                    context: format!("navigation.ins_config ({})", p.display()),
+                    source,
+                })?
+            }
+            (None, true) => InsConfig::default(),
+        };
+        let signing_key = if raw.mavlink.signing_key.is_empty() {
+            None
+        } else {
+            Some(decode_key(&raw.mavlink.signing_key).ok_or_else(|| {
+                invalid(
+                    "mavlink.signing_key",
+                    "<hidden>",
+                    "must be 64 hex digits or the base64 of 32 bytes",
+                )
+            })?)
+        };
+        let cfg = Self {
+            mavlink: raw.mavlink,
+            input: raw.input,
+            output: raw.output,
+            camera: raw.camera,
+            navigation: raw.navigation,
+            ins,
+            logging: raw.logging,
+            signing_key,
+        };
+        cfg.validate()?;
+        Ok(cfg)
+    }
+
+    fn validate(&self) -> Result<(), ConfigError> {
+        let m = &self.mavlink;
+        validate_connection(&m.connection)?;
+        if m.component_id == 0 {
+            return Err(invalid("mavlink.component_id", 0, "must be in [1, 255]"));
+        }
+        if m.refuse_unsigned && self.signing_key.is_none() {
+            return Err(invalid(
+                "mavlink.refuse_unsigned",
+                true,
+                "needs mavlink.signing_key",
+            ));
+        }
+        in_range("mavlink.link_timeout_s", m.link_timeout_s, 0.5, 60.0)?;
+        in_range("mavlink.timesync_rate_hz", m.timesync_rate_hz, 0.0, 50.0)?;
+        in_range(
+            "mavlink.timesync_max_rtt_ms",
+            m.timesync_max_rtt_ms,
+            0.1,
+            1000.0,
+        )?;
+        let i = &self.input;
+        in_range("input.imu_rate_hz", i.imu_rate_hz, 0.0, 400.0)?;
+        if i.imu_rate_hz > 0.0 && i.imu_rate_hz < 25.0 {
+            return Err(invalid(
+                "input.imu_rate_hz",
+                i.imu_rate_hz,
+                "must be 0 (do not request) or in [25, 400]: the INS needs ≥ 25 Hz",
+            ));
+        }
+        in_range("input.air_rate_hz", i.air_rate_hz, 0.0, 200.0)?;
+        in_range("input.gnss_rate_hz", i.gnss_rate_hz, 0.0, 50.0)?;
+        in_range("input.attitude_rate_hz", i.attitude_rate_hz, 0.0, 200.0)?;
+        in_range("input.isa_delta_t_k", i.isa_delta_t_k, -60.0, 60.0)?;
+        in_range(
+            "input.gnss_loss_timeout_s",
+            i.gnss_loss_timeout_s,
+            0.2,
+            60.0,
+        )?;
+        let o = &self.output;
+        in_range("output.rate_hz", o.rate_hz, 1.0, 200.0)?;
+        if o.gps_id > 1 {
+            return Err(invalid("output.gps_id", o.gps_id, "must be 0 or 1"));
+        }
+        if o.gps_leap_seconds > 60 {
+            return Err(invalid(
+                "output.gps_leap_seconds",
+                o.gps_leap_seconds,
+                "must be in [0, 60]",
+            ));
+        }
+        let c = &self.camera;
+        match c.source {
+            CameraSourceKind::None => {}
+            CameraSourceKind::FrameStream => {
+                if c.address.is_empty() || !c.address.contains(':') {
+                    return Err(invalid(
+                        "camera.address",
+                        format!("{:?}", c.address),
+                        "must be host:port with camera.source = \"frame_stream\"",
+                    ));
+                }
+            }
+            CameraSourceKind::Directory => {
+                if c.path.is_empty() {
+                    return Err(invalid(
+                        "camera.path",
+                        "\"\"",
+                        "must name a directory with camera.source = \"directory\"",
+                    ));
+                }
+            }
+            CameraSourceKind::V4l2 | CameraSourceKind::Gstreamer => {
+                return Err(invalid(
+                    "camera.source",
+                    format!("{:?}", c.source).to_lowercase(),
+                    "requires the `opencv` feature, which this build does not have",
+                ));
+            }
+        }
+        in_range("camera.rate_hz", c.rate_hz, 0.1, 100.0)?;
+        if !(1..=64).contains(&c.queue_frames) {
+            return Err(invalid(
+                "camera.queue_frames",
+                c.queue_frames,
+                "must be in [1, 64]",
+            ));
+        }
+        in_range("camera.retry_max_s", c.retry_max_s, 0.1, 600.0)?;
+        in_range("camera.timeout_s", c.timeout_s, 0.1, 600.0)?;
+        let n = &self.navigation;
+        if n.mag_decimal_year != 0.0 {
+            in_range(
+                "navigation.mag_decimal_year",
+                n.mag_decimal_year,
+                2025.0,
+                2030.0,
+            )?;
+        }
+        let l = &self.logging;
+        if l.level.trim().is_empty() {
+            return Err(invalid("logging.level", "\"\"", "must not be empty"));
+        }
+        in_range(
+            "logging.counters_period_s",
+            l.counters_period_s,
+            0.0,
+            3600.0,
+        )?;
+        Ok(())
+    }
+}
+
+/// Check a connection string's scheme and shape (the mavlink crate parses it again).
+fn validate_connection(s: &str) -> Result<(), ConfigError> {
+    let bad = |reason: &str| invalid("mavlink.connection", format!("{s:?}"), reason);
+    let Some((scheme, rest)) = s.split_once(':') else {
+        return Err(bad(
+            "must be scheme:address (udpin, udpout, tcpin, tcpout, serial)",
+        ));
+    };
+    match scheme {
+        "udpin" | "udpout" | "tcpin" | "tcpout" => {
+            let Some((host, port)) = rest.rsplit_once(':') else {
+                return Err(bad("must be scheme:host:port"));
+            };
+            if host.is_empty() || port.parse::<u16>().is_err() {
+                return Err(bad("must be scheme:host:port with a port in [0, 65535]"));
+            }
+            Ok(())
+        }
+        "serial" => {
+            let Some((dev, baud)) = rest.rsplit_once(':') else {
+                return Err(bad("must be serial:device:baud"));
+            };
+            if dev.is_empty() || !baud.parse::<u32>().is_ok_and(|b| b > 0) {
+                return Err(bad("must be serial:device:baud with a positive baud rate"));
+            }
+            Ok(())
+        }
+        _ => Err(bad(
+            "unknown scheme: use udpin, udpout, tcpin, tcpout or serial",
+        )),
+    }
+}
+
+/// Decode a 32-byte key from 64 hex digits or standard base64.
+fn decode_key(s: &str) -> Option<[u8; 32]> {
+    let s = s.trim();
+    let bytes = if s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit()) {
+        (0..32)
+            .map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).ok())
+            .collect::<Option<Vec<u8>>>()?
+    } else {
+        decode_base64(s)?
+    };
+    bytes.try_into().ok()
+}
+
+fn decode_base64(s: &str) -> Option<Vec<u8>> {
+    let val = |c: u8| -> Option<u32> {
+        Some(match c {
+            b'A'..=b'Z' => u32::from(c - b'A'),
+            b'a'..=b'z' => u32::from(c - b'a') + 26,
+            b'0'..=b'9' => u32::from(c - b'0') + 52,
+            b'+' => 62,
+            b'/' => 63,
+            _ => return None,
+        })
+    };
+    let trimmed = s.trim_end_matches('=');
+    if !s.len().is_multiple_of(4) || s.len() - trimmed.len() > 2 {
+        return None;
+    }
+    let mut out = Vec::with_capacity(trimmed.len() * 3 / 4);
+    let (mut acc, mut bits) = (0_u32, 0_u32);
+    for c in trimmed.bytes() {
+        acc = (acc << 6) | val(c)?;
+        bits += 6;
+        if bits >= 8 {
+            bits -= 8;
+            out.push(((acc >> bits) & 0xff) as u8);
+        }
+    }
+    Some(out)
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const SHIPPED: &str = include_str!("../config/ianav.toml");
+
+    fn parse(s: &str) -> Result<DaemonConfig, ConfigError> {
+        DaemonConfig::from_toml_str(s, Some(Path::new("config")))
+    }
+
+    const MINIMAL: &str = "[mavlink]\nconnection = \"udpin:0.0.0.0:14540\"\n\
+                           [output]\nrate_hz = 30\n";
+
+    #[test]
+    fn the_shipped_file_and_a_minimal_file_are_valid() {
+        let cfg = parse(SHIPPED).unwrap();
+        assert_eq!(cfg.mavlink.component_id, 197);
+        assert_eq!(
+            cfg.ins,
+            InsConfig::from_toml_str(include_str!("../config/ins.toml")).unwrap()
+        );
+        let min = parse(MINIMAL).unwrap();
+        assert_eq!(
+            (min.mavlink.component_id, min.output.mode, min.camera.source),
+            (197, OutputMode::Auto, CameraSourceKind::None)
+        );
+        assert_eq!(min.input.imu_rate_hz, 100.0);
+        assert_eq!(min.ins, InsConfig::default());
+        assert!(min.signing_key.is_none());
+    }
+
+    fn error(s: &str) -> String {
+        parse(s).unwrap_err().to_string()
+    }
+
+    #[test]
+    fn bad_values_name_their_key() {
+        let e = error(&MINIMAL.replace("rate_hz = 30", "rate_hz = 500"));
+        assert_eq!(e, "output.rate_hz = 500: must be in [1, 200]");
+        let e = error(&MINIMAL.replace("udpin:0.0.0.0:14540", "udp:1.2.3.4:5"));
+        assert!(
+            e.starts_with("mavlink.connection = \"udp:1.2.3.4:5\""),
+            "{e}"
+        );
+        let e = error(&MINIMAL.replace("14540", "99999"));
+        assert!(e.starts_with("mavlink.connection"), "{e}");
+        assert!(parse(&MINIMAL.replace("udpin:0.0.0.0:14540", "serial:/dev/ttyS1:57600")).is_ok());
+        let e = error(&format!("{MINIMAL}[input]\nimu_rate_hz = 10\n"));
+        assert!(e.starts_with("input.imu_rate_hz = 10:"), "{e}");
+        let e = error(&format!("{MINIMAL}[camera]\nsource = \"frame_stream\"\n"));
+        assert!(e.starts_with("camera.address"), "{e}");
+        let e = error(&format!(
+            "{MINIMAL}[camera]\nsource = \"v4l2\"\ndevice = \"/dev/video0\"\n"
+        ));
+        assert!(e.contains("opencv"), "{e}");
+        let e = error(&MINIMAL.replace("[output]", "refuse_unsigned = true\n[output]"));
+        assert!(e.starts_with("mavlink.refuse_unsigned"), "{e}");
+        let e = error(&MINIMAL.replace("[output]", "signing_key = \"abc\"\n[output]"));
+        assert!(e.starts_with("mavlink.signing_key"), "{e}");
+        // The INS key is named too.
+        let e = error(&format!("{MINIMAL}[ins]\nimu_gap_s = -1.0\n"));
+        assert!(e.contains("imu_gap_s"), "{e}");
+    }
+
+    #[test]
+    fn unknown_keys_and_broken_toml_are_errors() {
+        let e = error(&MINIMAL.replace("rate_hz = 30", "rate_hz = 30\nrat_hz = 1"));
+        assert!(e.contains("rat_hz"), "{e}");
+        let e = error(&format!("{MINIMAL}[camra]\n"));
+        assert!(e.contains("camra"), "{e}");
+        let e = error(&format!("{MINIMAL}[ins.air]\nbogus = 1\n"));
+        assert!(e.contains("bogus"), "{e}");
+        assert!(parse("[mavlink\nconnection = 1").is_err());
+        assert!(parse("").unwrap_err().to_string().contains("mavlink"));
+    }
+
+    #[test]
+    fn signing_keys_decode_from_hex_and_base64() {
+        let hex: String = (0..32).map(|i| format!("{i:02x}")).collect();
+        let expect: Vec<u8> = (0..32).collect();
+        assert_eq!(decode_key(&hex).unwrap().to_vec(), expect);
+        // base64 of bytes 0..32, computed by hand from the 6-bit groups.
+        let b64 = "AAECAwQFBgcICQoLDA0ODxAREhMUFRYXGBkaGxwdHh8=";
+        assert_eq!(decode_key(b64).unwrap().to_vec(), expect);
+        assert!(decode_key("AAEC").is_none(), "3 bytes is not a key");
+        assert!(decode_key(&hex[..62]).is_none());
+        let cfg = parse(&MINIMAL.replace(
+            "[output]",
+            &format!("signing_key = \"{hex}\"\nrefuse_unsigned = true\n[output]"),
+        ))
+        .unwrap();
+        assert_eq!(cfg.signing_key.unwrap()[31], 31);
+    }
+
+    #[test]
+    fn ins_from_a_file_or_inline_but_not_both() {
+        let cfg = parse(&format!(
+            "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n"
+        ))
+        .unwrap();
+        assert_eq!(cfg.ins.imu_gap_s, 0.1);
+        let e = error(&format!(
+            "{MINIMAL}[navigation]\nins_config = \"missing.toml\"\n"
+        ));
+        assert!(e.contains("missing.toml"), "{e}");
+        let inline = parse(&format!("{MINIMAL}[ins]\nimu_gap_s = 0.2\n")).unwrap();
+        assert_eq!(inline.ins.imu_gap_s, 0.2);
+        let e = error(&format!(
+            "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n[ins]\nimu_gap_s = 0.2\n"
+        ));
+        assert!(e.starts_with("navigation.ins_config"), "{e}");
+    }
+}

@@ -1,0 +1,437 @@
+//! The MAVLink link tasks (research/mavlink.md §1.3–1.6, §3.4, §7): connection with
+//! reconnection, the reader (autopilot identification, TIMESYNC, reboot detection, message →
+//! sensor events, INS initialisation), the writer, and the periodic TIMESYNC and
+//! SET_MESSAGE_INTERVAL requests.
+//!
+//! The reader receives raw frames (`recv_raw`) and parses the payload itself, so that it can
+//! count MAVLink 1 and signed frames and payload parse errors on every transport. Frames with
+//! a bad CRC or an unknown message id, and (with `refuse_unsigned`) unsigned or MAVLink 1
+//! frames, are discarded inside the mavlink crate's frame decoder before the reader sees
+//! them: they are invisible to the counters (rust-mavlink #209), and the robustness tests
+//! check instead that valid traffic after them still gets through.
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+use mavlink::{AsyncMavConnection, MAVLinkMessageRaw, MavHeader, Message, MessageData};
+use tokio::sync::{mpsc, watch};
+
+use super::nav_thread::NavInput;
+use super::{Clock, Outbox, Shared, stopped_after};
+use crate::config::{AutopilotKind, DaemonConfig};
+use crate::ins::InsInit;
+use crate::io::mavlink_in::{DecoderConfig, InputDecoder};
+use crate::io::mavlink_out;
+use crate::io::timesync::{Kind, MonotonicGate, TimeSync};
+use crate::sensors::SensorEvent;
+use mavlink::dialects::ardupilotmega as apm;
+
+/// The connection type.
+pub type Conn = mavlink::AsyncConnection<apm::MavMessage>;
+
+/// Largest difference between the ATTITUDE and the GNSS fix used to start the INS, µs.
+pub const INIT_ATTITUDE_MAX_AGE_US: u64 = 1_000_000;
+
+async fn connect(cfg: &DaemonConfig) -> std::io::Result<Conn> {
+    let mut conn = mavlink::connect_async::<apm::MavMessage>(&cfg.mavlink.connection).await?;
+    conn.set_allow_recv_any_version(!cfg.mavlink.refuse_unsigned);
+    if let Some(key) = cfg.signing_key {
+        conn.setup_signing(Some(mavlink::SigningConfig::new(
+            key,
+            cfg.mavlink.signing_link_id,
+            true,
+            !cfg.mavlink.refuse_unsigned,
+        )));
+    }
+    Ok(conn)
+}
+
+/// Send queued messages on the current connection.
+pub(super) async fn writer(
+    cfg: Arc<DaemonConfig>,
+    mut out: mpsc::Receiver<super::Outgoing>,
+    conn: watch::Receiver<Option<Arc<Conn>>>,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+) {
+    loop {
+        let (msg, imu_rx) = tokio::select! {
+            m = out.recv() => match m { Some(m) => m, None => return },
+            _ = stop.wait_for(|s| *s) => return,
+        };
+        let current = conn.borrow().clone();
+        let Some(c) = current else {
+            shared.count(|c| c.tx_failed += 1);
+            continue;
+        };
+        let system_id = if cfg.mavlink.system_id != 0 {
+            cfg.mavlink.system_id
+        } else {
+            shared.state(|s| s.autopilot.map_or(1, |a| a.0))
+        };
+        let header = MavHeader {
+            system_id: u32::from(system_id),
+            component_id: cfg.mavlink.component_id,
+            sequence: 0,
+        };
+        match c.send(&header, &msg).await {
+            // udpin before the first datagram: no peer to send to.
+            Ok(0) => shared.count(|c| c.tx_failed += 1),
+            Ok(_) => {
+                shared.count(|c| c.tx_messages += 1);
+                if let Some(t) = imu_rx {
+                    shared
+                        .record_latency(u64::try_from(t.elapsed().as_micros()).unwrap_or(u64::MAX));
+                }
+            }
+            Err(e) => {
+                tracing::debug!("send {}: {e}", msg.message_name());
+                shared.count(|c| c.tx_failed += 1);
+            }
+        }
+    }
+}
+
+/// Per-connection-independent state of the reader.
+struct ReaderState {
+    ts: TimeSync,
+    dec: InputDecoder,
+    gate: MonotonicGate,
+    init_sent: bool,
+}
+
+/// Connect (with back-off), read, reconnect on transport errors.
+pub(super) async fn reader(
+    cfg: Arc<DaemonConfig>,
+    clock: Clock,
+    conn_tx: watch::Sender<Option<Arc<Conn>>>,
+    events: mpsc::Sender<NavInput>,
+    outbox: Outbox,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+) {
+    let p = &cfg.ins.position;
+    let mut st = ReaderState {
+        ts: {
+            let ts = TimeSync::new((cfg.mavlink.timesync_max_rtt_ms * 1e6) as u64);
+            if cfg.mavlink.clock == crate::config::ClockSource::Autopilot {
+                ts.with_autopilot_clock()
+            } else {
+                ts
+            }
+        },
+        dec: InputDecoder::new(DecoderConfig {
+            temperature: cfg.input.temperature,
+            isa_delta_t_k: cfg.input.isa_delta_t_k,
+            raw_imu_is_scaled: cfg.mavlink.autopilot == AutopilotKind::Ardupilot,
+            default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
+        }),
+        gate: MonotonicGate::default(),
+        init_sent: false,
+    };
+    let mut backoff = Duration::from_millis(100);
+    loop {
+        if *stop.borrow() {
+            return;
+        }
+        let conn = tokio::select! {
+            c = connect(&cfg) => c,
+            _ = stop.wait_for(|s| *s) => return,
+        };
+        let conn = match conn {
+            Ok(c) => Arc::new(c),
+            Err(e) => {
+                tracing::warn!("connect {}: {e}", cfg.mavlink.connection);
+                shared.count(|c| c.link_errors += 1);
+                if stopped_after(&mut stop, backoff).await {
+                    return;
+                }
+                backoff = (backoff * 2).min(Duration::from_secs(5));
+                continue;
+            }
+        };
+        backoff = Duration::from_millis(100);
+        shared.count(|c| c.connects += 1);
+        tracing::info!("MAVLink link open: {}", cfg.mavlink.connection);
+        conn_tx.send_replace(Some(conn.clone()));
+        loop {
+            let r = tokio::select! {
+                r = conn.recv_raw() => r,
+                _ = stop.wait_for(|s| *s) => return,
+            };
+            match r {
+                Ok(raw) => {
+                    if !handle_raw(&cfg, clock, &raw, &mut st, &events, &outbox, &shared).await {
+                        return;
+                    }
+                }
+                Err(mavlink::error::MessageReadError::Parse(e)) => {
+                    tracing::debug!("parse error: {e}");
+                    shared.count(|c| c.rx_parse_errors += 1);
+                }
+                Err(mavlink::error::MessageReadError::Io(e)) => {
+                    tracing::warn!("link error, reconnecting: {e}");
+                    shared.count(|c| c.link_errors += 1);
+                    break;
+                }
+            }
+        }
+        conn_tx.send_replace(None);
+        if stopped_after(&mut stop, backoff).await {
+            return;
+        }
+    }
+}
+
+fn kind_of(cfg: &DaemonConfig, h: &apm::HEARTBEAT_DATA) -> AutopilotKind {
+    match (cfg.mavlink.autopilot, h.autopilot) {
+        (AutopilotKind::Auto, apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA) => {
+            AutopilotKind::Ardupilot
+        }
+        // PX4 and any other MAVLink autopilot: the common-message behaviour.
+        (AutopilotKind::Auto, _) => AutopilotKind::Px4,
+        (k, _) => k,
+    }
+}
+
+/// Handle one frame. Returns `false` when the navigation thread is gone.
+async fn handle_raw(
+    cfg: &DaemonConfig,
+    clock: Clock,
+    raw: &MAVLinkMessageRaw,
+    st: &mut ReaderState,
+    events: &mpsc::Sender<NavInput>,
+    outbox: &Outbox,
+    shared: &Shared,
+) -> bool {
+    use apm::MavMessage as M;
+    let rx_at = Instant::now();
+    let rx_us = clock.now_us();
+    let version = raw.version();
+    let signed = matches!(raw, MAVLinkMessageRaw::V2(r) if r.incompatibility_flags() & 0x01 != 0);
+    shared.count(|c| {
+        c.rx_frames += 1;
+        c.rx_v1_frames += u64::from(version == mavlink::MavlinkVersion::V1);
+        c.rx_signed_frames += u64::from(signed);
+    });
+    let msg = match M::parse(version, raw.message_id(), raw.payload()) {
+        Ok(m) => m,
+        Err(e) => {
+            tracing::debug!("payload parse error: {e}");
+            shared.count(|c| c.rx_parse_errors += 1);
+            return true;
+        }
+    };
+    let Ok(sys) = u8::try_from(raw.system_id()) else {
+        shared.count(|c| c.rx_foreign += 1);
+        return true;
+    };
+    let comp = raw.component_id();
+    // Our own frames echoed back by a router or a broadcast link.
+    if comp == cfg.mavlink.component_id {
+        shared.count(|c| c.rx_foreign += 1);
+        return true;
+    }
+    if let M::HEARTBEAT(h) = &msg
+        && h.autopilot != apm::MavAutopilot::MAV_AUTOPILOT_INVALID
+    {
+        let kind = kind_of(cfg, h);
+        let new = shared.state(|s| {
+            let new = s.autopilot.is_none_or(|(a, _, _)| a != sys);
+            if new {
+                s.autopilot = Some((sys, comp, kind));
+                s.request_generation += 1;
+            }
+            new
+        });
+        if new {
+            tracing::info!(sys, comp, ?kind, "autopilot found");
+            st.dec
+                .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
+        }
+        shared.count(|c| c.autopilot_heartbeats += 1);
+    }
+    let Some((ap_sys, _, _)) = shared.state(|s| s.autopilot) else {
+        // Answer TIMESYNC from anyone; ignore the rest until the autopilot is known.
+        if let M::TIMESYNC(t) = &msg {
+            if let Some(reply) = st.ts.handle(t, clock.now_ns(), sys, comp) {
+                outbox.send(M::TIMESYNC(reply));
+            }
+        } else {
+            shared.count(|c| c.rx_before_heartbeat += 1);
+        }
+        return true;
+    };
+    if sys != ap_sys {
+        shared.count(|c| c.rx_foreign += 1);
+        return true;
+    }
+    shared.state(|s| s.last_rx_us = Some(rx_us));
+    let clock_stamp_us = match &msg {
+        M::HIGHRES_IMU(m) => Some(m.time_usec),
+        M::RAW_IMU(m) => Some(m.time_usec),
+        M::SCALED_IMU(m) => Some(u64::from(m.time_boot_ms) * 1_000),
+        M::ATTITUDE(m) => Some(u64::from(m.time_boot_ms) * 1_000),
+        M::SYSTEM_TIME(m) => Some(u64::from(m.time_boot_ms) * 1_000),
+        _ => None,
+    };
+    if let Some(ap_us) = clock_stamp_us
+        && st.ts.observe_clock(ap_us, rx_us)
+    {
+        st.dec.reset();
+        shared.state(|s| s.request_generation += 1);
+        shared.count(|c| c.autopilot_reboots += 1);
+        outbox.status(
+            apm::MavSeverity::MAV_SEVERITY_WARNING,
+            "ianav: autopilot reboot detected",
+        );
+    }
+    match &msg {
+        M::TIMESYNC(t) => {
+            if let Some(reply) = st.ts.handle(t, clock.now_ns(), sys, comp) {
+                outbox.send(M::TIMESYNC(reply));
+            }
+        }
+        M::COMMAND_ACK(_) => shared.count(|c| c.command_acks += 1),
+        _ => {}
+    }
+    let ReaderState { ts, dec, .. } = st;
+    let evs = dec.decode(&msg, &mut |t| ts.map(t, rx_us));
+    let (dc, tc, offset) = (
+        *st.dec.counters(),
+        *st.ts.counters(),
+        st.ts.vehicle_offset_us(),
+    );
+    shared.count(|c| {
+        c.input = dc;
+        c.timesync = tc;
+    });
+    shared.state(|s| s.offset_us = offset);
+    for ev in evs {
+        let kind = match &ev {
+            SensorEvent::Imu(_) => Kind::Imu,
+            SensorEvent::Air(_) => Kind::Air,
+            SensorEvent::Mag(_) => Kind::Mag,
+            SensorEvent::Gnss(_) => Kind::Gnss,
+            SensorEvent::Frame(_) => Kind::Frame,
+        };
+        if !st.gate.accept(kind, ev.t_us()) {
+            let n = st.gate.rejected;
+            shared.count(|c| c.time_order_rejected = n);
+            continue;
+        }
+        if let SensorEvent::Gnss(fix) = &ev {
+            shared.state(|s| s.last_fix_us = Some(rx_us));
+            if !st.init_sent {
+                match st.dec.attitude() {
+                    Some(att) if att.t_us.abs_diff(fix.t_us) <= INIT_ATTITUDE_MAX_AGE_US => {
+                        let year = if cfg.navigation.mag_decimal_year != 0.0 {
+                            cfg.navigation.mag_decimal_year
+                        } else {
+                            clock.decimal_year()
+                        };
+                        let init = InsInit::new(att.q_nb, fix.pos, fix.v_ned_mps, year);
+                        let und = st.dec.undulation_m().unwrap_or(0.0);
+                        shared.state(|s| {
+                            s.origin = Some(fix.pos);
+                            s.undulation_m = und;
+                        });
+                        if events.send(NavInput::Init(Box::new(init))).await.is_err() {
+                            return false;
+                        }
+                        st.init_sent = true;
+                    }
+                    _ => tracing::debug!("GNSS fix without a recent ATTITUDE: INS not started"),
+                }
+            }
+        }
+        if events.send(NavInput::Event(ev, rx_at)).await.is_err() {
+            tracing::error!("navigation thread gone");
+            return false;
+        }
+        shared.count(|c| c.events_to_nav += 1);
+    }
+    true
+}
+
+/// Our TIMESYNC requests at `mavlink.timesync_rate_hz`.
+pub(super) async fn timesync_requests(
+    cfg: Arc<DaemonConfig>,
+    clock: Clock,
+    outbox: Outbox,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+) {
+    if cfg.mavlink.timesync_rate_hz <= 0.0 {
+        return;
+    }
+    let period = Duration::from_secs_f64(1.0 / cfg.mavlink.timesync_rate_hz);
+    loop {
+        if stopped_after(&mut stop, period).await {
+            return;
+        }
+        if let Some((sys, comp, _)) = shared.state(|s| s.autopilot) {
+            outbox.send(apm::MavMessage::TIMESYNC(TimeSync::request(
+                clock.now_ns(),
+                sys,
+                comp,
+            )));
+        }
+    }
+}
+
+/// The messages and rates to request from an autopilot kind.
+pub fn requested_streams(cfg: &DaemonConfig, kind: AutopilotKind) -> Vec<(u32, f64)> {
+    let i = &cfg.input;
+    let mut v = match kind {
+        AutopilotKind::Ardupilot => vec![
+            // ArduPlane refuses intervals faster than its 50 Hz loop.
+            (apm::SCALED_IMU_DATA::ID, i.imu_rate_hz.min(50.0)),
+            (apm::AOA_SSA_DATA::ID, i.air_rate_hz),
+        ],
+        _ => vec![
+            (apm::HIGHRES_IMU_DATA::ID, i.imu_rate_hz),
+            (apm::AIRSPEED_DATA::ID, i.air_rate_hz),
+        ],
+    };
+    v.extend([
+        (apm::SCALED_PRESSURE_DATA::ID, i.air_rate_hz),
+        (apm::VFR_HUD_DATA::ID, i.air_rate_hz),
+        (apm::ATTITUDE_DATA::ID, i.attitude_rate_hz),
+        (apm::GPS_RAW_INT_DATA::ID, i.gnss_rate_hz),
+        (apm::GLOBAL_POSITION_INT_DATA::ID, i.gnss_rate_hz),
+    ]);
+    v.retain(|(_, r)| *r > 0.0);
+    v
+}
+
+/// Send the SET_MESSAGE_INTERVAL set whenever the request generation changes (autopilot
+/// found, reboot, link restored).
+pub(super) async fn interval_requests(
+    cfg: Arc<DaemonConfig>,
+    outbox: Outbox,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+) {
+    let mut done = 0_u64;
+    loop {
+        if stopped_after(&mut stop, Duration::from_millis(200)).await {
+            return;
+        }
+        let (generation, ap) = shared.state(|s| (s.request_generation, s.autopilot));
+        let Some((sys, comp, kind)) = ap else {
+            continue;
+        };
+        if generation == done {
+            continue;
+        }
+        done = generation;
+        for (id, rate) in requested_streams(&cfg, kind) {
+            outbox.send(apm::MavMessage::COMMAND_LONG(
+                mavlink_out::set_message_interval(sys, comp, id, rate),
+            ));
+        }
+        shared.count(|c| c.interval_requests += 1);
+        tracing::info!(?kind, "message intervals requested");
+    }
+}

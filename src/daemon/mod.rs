@@ -1,0 +1,642 @@
+//! The onboard daemon (issue 5; ARCHITECTURE "The daemon"; research/mavlink.md §1, §3, §6):
+//! tokio tasks around a navigation OS thread.
+//!
+//! ```text
+//!  link (reader) ─ HEARTBEAT: autopilot kind, ids ─► interval requests (again after reboot)
+//!     │           TIMESYNC: answer / offset            │
+//!     │ SensorEvents (t_us, our clock), bounded 2048,  ▼
+//!     │ backpressure: never dropped               outbox (bounded 256) ─► writer ─► link
+//!     ▼                                                ▲
+//!  navigation thread (Navigator) ─ latest solution ─► publisher (rate_hz) ─┘
+//!     ▲ frames: queue of camera.queue_frames, oldest dropped     heartbeat 1 Hz, monitor
+//!  camera task (frame stream / directory)                        (STATUSTEXT, counters, sd_notify)
+//! ```
+//!
+//! One clock: [`Clock`], monotonic µs since the daemon started; every `t_us` the navigation
+//! core sees and every `time_usec` sent is on it.
+
+pub mod camera;
+pub mod link;
+pub mod nav_thread;
+pub mod notify;
+pub mod publish;
+
+use std::sync::{Arc, Mutex, MutexGuard};
+use std::time::{Duration, Instant, SystemTime};
+
+use tokio::sync::{mpsc, watch};
+
+use crate::config::{AutopilotKind, DaemonConfig, OutputMode};
+use crate::ins::InsStats;
+use crate::io::mavlink_in::InputCounters;
+use crate::io::mavlink_out::{self, Health};
+use crate::io::timesync::TimeSyncCounters;
+use crate::math::wgs84::Geodetic;
+use crate::nav::{NavSolution, NavigatorStats};
+use mavlink::dialects::ardupilotmega as apm;
+
+/// Capacity of the sensor-event channel to the navigation thread: ≥ 2 s of a 200 Hz IMU plus
+/// air, magnetometer and GNSS at their rates, so a 2 s stall of the thread loses nothing
+/// (the reader waits instead).
+pub const EVENT_CHANNEL: usize = 2_048;
+/// Capacity of the outgoing-message queue; beyond it messages are dropped and counted.
+pub const OUTBOX: usize = 256;
+/// A solution whose IMU message was received longer ago than this is stale (the IMU has
+/// stopped): the heartbeat leaves ACTIVE and the watchdog is not fed, µs.
+pub const MAX_SOLUTION_AGE_US: u64 = 500_000;
+
+/// Why the daemon stopped.
+#[derive(Debug, thiserror::Error)]
+pub enum DaemonError {
+    /// The navigation core could not be built.
+    #[error("navigation: {0}")]
+    Nav(#[from] crate::ins::InsError),
+    /// The navigation thread could not be started or died.
+    #[error("navigation thread: {0}")]
+    Thread(String),
+}
+
+/// The daemon's monotonic clock.
+#[derive(Debug, Clone, Copy)]
+pub struct Clock {
+    start: Instant,
+    unix_at_start_us: u64,
+}
+
+impl Clock {
+    /// Start now.
+    pub fn new() -> Self {
+        let unix_at_start_us = SystemTime::now()
+            .duration_since(SystemTime::UNIX_EPOCH)
+            .map_or(0, |d| u64::try_from(d.as_micros()).unwrap_or(u64::MAX));
+        Self {
+            start: Instant::now(),
+            unix_at_start_us,
+        }
+    }
+
+    /// µs since start.
+    pub fn now_us(&self) -> u64 {
+        u64::try_from(self.start.elapsed().as_micros()).unwrap_or(u64::MAX)
+    }
+
+    /// ns since start.
+    pub fn now_ns(&self) -> u64 {
+        u64::try_from(self.start.elapsed().as_nanos()).unwrap_or(u64::MAX)
+    }
+
+    /// Unix time of a time on this clock, µs.
+    pub fn unix_us(&self, t_us: u64) -> u64 {
+        self.unix_at_start_us.saturating_add(t_us)
+    }
+
+    /// Decimal year now (for the magnetic model).
+    pub fn decimal_year(&self) -> f64 {
+        1970.0 + self.unix_at_start_us as f64 / 1e6 / 31_556_952.0
+    }
+}
+
+impl Default for Clock {
+    fn default() -> Self {
+        Self::new()
+    }
+}
+
+/// Every counter of the daemon (a snapshot is logged periodically; tests read it).
+#[derive(Debug, Clone, Default)]
+pub struct Counters {
+    /// MAVLink frames received (CRC-valid, known message id).
+    pub rx_frames: u64,
+    /// … of which MAVLink 1.
+    pub rx_v1_frames: u64,
+    /// … of which signed.
+    pub rx_signed_frames: u64,
+    /// Frames whose payload did not parse (bad enum value, bad length).
+    pub rx_parse_errors: u64,
+    /// Messages from systems other than the autopilot's (or carrying our own component id),
+    /// ignored.
+    pub rx_foreign: u64,
+    /// Sensor messages received before the autopilot's HEARTBEAT, ignored.
+    pub rx_before_heartbeat: u64,
+    /// Link (re)connections.
+    pub connects: u64,
+    /// Transport errors that forced a reconnection.
+    pub link_errors: u64,
+    /// Link losses (no message for `link_timeout_s`).
+    pub link_losses: u64,
+    /// Messages sent.
+    pub tx_messages: u64,
+    /// Messages not sent (no peer yet, transport error).
+    pub tx_failed: u64,
+    /// Messages dropped because the outbox was full.
+    pub tx_queue_full: u64,
+    /// SET_MESSAGE_INTERVAL rounds sent.
+    pub interval_requests: u64,
+    /// COMMAND_ACKs received.
+    pub command_acks: u64,
+    /// Autopilot HEARTBEATs received.
+    pub autopilot_heartbeats: u64,
+    /// Autopilot reboots detected.
+    pub autopilot_reboots: u64,
+    /// Message conversion counters.
+    pub input: InputCounters,
+    /// Time synchronisation counters.
+    pub timesync: TimeSyncCounters,
+    /// Samples refused as duplicate or out of order.
+    pub time_order_rejected: u64,
+    /// Sensor events handed to the navigation thread.
+    pub events_to_nav: u64,
+    /// Navigator counters.
+    pub nav: NavigatorStats,
+    /// INS counters.
+    pub ins: Option<InsStats>,
+    /// Solutions produced.
+    pub solutions: u64,
+    /// Messages published (ODOMETRY / GPS_INPUT / VISION_POSITION_ESTIMATE).
+    pub published: u64,
+    /// Monitor ticks (10 Hz) after the initialisation without a fresh solution (IMU
+    /// stopped): nothing is published then.
+    pub publish_stale: u64,
+    /// SET_GPS_GLOBAL_ORIGIN sent.
+    pub origins_sent: u64,
+    /// Camera frames received.
+    pub frames_received: u64,
+    /// Frames dropped (oldest first) because the navigation thread was late.
+    pub frames_dropped: u64,
+    /// Frames refused: time not mappable or out of order.
+    pub frames_refused: u64,
+    /// Camera connection / read errors.
+    pub camera_errors: u64,
+    /// Camera (re)connections.
+    pub camera_connects: u64,
+    /// STATUSTEXTs sent.
+    pub statustexts: u64,
+    /// Published solutions whose latency was measured.
+    pub latency_samples: u64,
+    /// Largest latency from the reception of an IMU message to the socket write of the
+    /// solution computed from it, µs.
+    pub latency_max_us: u64,
+}
+
+/// Latencies kept for percentiles (a ring of the most recent ones).
+pub const LATENCY_RING: usize = 8_192;
+
+/// Link and estimator state shared by the tasks.
+#[derive(Debug, Clone, Default)]
+pub struct State {
+    /// Autopilot system and component id and kind, once its HEARTBEAT is seen.
+    pub autopilot: Option<(u8, u8, AutopilotKind)>,
+    /// Time of the last message from the autopilot, µs.
+    pub last_rx_us: Option<u64>,
+    /// Time of the last valid GNSS fix, µs.
+    pub last_fix_us: Option<u64>,
+    /// Time of the last camera frame, µs.
+    pub last_frame_us: Option<u64>,
+    /// Offset from the vehicle clock to `t_us`, µs (camera frame stamps).
+    pub offset_us: Option<i64>,
+    /// Origin of the local frame (first fix), and the geoid undulation there.
+    pub origin: Option<Geodetic>,
+    /// Geoid undulation (ellipsoid − MSL), m.
+    pub undulation_m: f64,
+    /// Incremented when the intervals must be requested again (reboot, link restored).
+    pub request_generation: u64,
+}
+
+/// State shared between tasks.
+#[derive(Debug, Default)]
+pub struct Shared {
+    counters: Mutex<Counters>,
+    state: Mutex<State>,
+    latencies_us: Mutex<Vec<u32>>,
+}
+
+fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
+    // A panicking holder cannot leave these plain-data structs half-updated in a harmful way.
+    m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
+}
+
+impl Shared {
+    /// Update the counters.
+    pub fn count(&self, f: impl FnOnce(&mut Counters)) {
+        f(&mut lock(&self.counters));
+    }
+
+    /// A copy of the counters.
+    pub fn counters(&self) -> Counters {
+        lock(&self.counters).clone()
+    }
+
+    /// Record one IMU → socket latency.
+    pub fn record_latency(&self, us: u64) {
+        let n = {
+            let mut c = lock(&self.counters);
+            c.latency_max_us = c.latency_max_us.max(us);
+            c.latency_samples += 1;
+            c.latency_samples
+        };
+        let mut ring = lock(&self.latencies_us);
+        let v = u32::try_from(us).unwrap_or(u32::MAX);
+        if ring.len() < LATENCY_RING {
+            ring.push(v);
+        } else {
+            let i = usize::try_from(n % LATENCY_RING as u64).unwrap_or(0);
+            ring[i] = v;
+        }
+    }
+
+    /// (p50, p99, max) of the recent latencies, µs (`None` without samples).
+    pub fn latency_percentiles(&self) -> Option<(u32, u32, u32)> {
+        let mut v = lock(&self.latencies_us).clone();
+        if v.is_empty() {
+            return None;
+        }
+        v.sort_unstable();
+        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+        Some((at(0.5), at(0.99), at(1.0)))
+    }
+
+    /// Read or update the state.
+    pub fn state<R>(&self, f: impl FnOnce(&mut State) -> R) -> R {
+        f(&mut lock(&self.state))
+    }
+}
+
+/// The latest solution and the reception time of the IMU message that produced it.
+#[derive(Debug, Clone, Copy)]
+pub struct Latest {
+    /// The solution.
+    pub sol: NavSolution,
+    /// When its IMU message was received.
+    pub imu_rx: Instant,
+}
+
+/// Outgoing messages (bounded; full = dropped and counted).
+#[derive(Debug, Clone)]
+pub struct Outbox {
+    tx: mpsc::Sender<Outgoing>,
+    shared: Arc<Shared>,
+}
+
+/// A queued message and, for a published solution, when its IMU message was received.
+pub type Outgoing = (apm::MavMessage, Option<Instant>);
+
+impl Outbox {
+    /// Queue a message.
+    pub fn send(&self, msg: apm::MavMessage) {
+        self.send_timed(msg, None);
+    }
+
+    /// Queue a message whose latency from `imu_rx` is measured when it has been written.
+    pub fn send_timed(&self, msg: apm::MavMessage, imu_rx: Option<Instant>) {
+        if self.tx.try_send((msg, imu_rx)).is_err() {
+            self.shared.count(|c| c.tx_queue_full += 1);
+        }
+    }
+
+    /// Log and send a STATUSTEXT.
+    pub fn status(&self, severity: apm::MavSeverity, text: &str) {
+        match severity {
+            apm::MavSeverity::MAV_SEVERITY_EMERGENCY
+            | apm::MavSeverity::MAV_SEVERITY_ALERT
+            | apm::MavSeverity::MAV_SEVERITY_CRITICAL
+            | apm::MavSeverity::MAV_SEVERITY_ERROR
+            | apm::MavSeverity::MAV_SEVERITY_WARNING => tracing::warn!("{text}"),
+            _ => tracing::info!("{text}"),
+        }
+        self.shared.count(|c| c.statustexts += 1);
+        self.send(apm::MavMessage::STATUSTEXT(mavlink_out::statustext(
+            severity, text,
+        )));
+    }
+}
+
+/// A running daemon: its shared state and a way to stop it.
+#[derive(Debug)]
+pub struct Handle {
+    /// Counters and state.
+    pub shared: Arc<Shared>,
+    stop: watch::Sender<bool>,
+}
+
+impl Handle {
+    /// Ask every task to stop.
+    pub fn stop(&self) {
+        let _ = self.stop.send(true);
+    }
+}
+
+/// Run the daemon until `handle.stop()` (or a fatal error). The caller provides the runtime.
+pub async fn run(
+    cfg: DaemonConfig,
+    handle_tx: Option<tokio::sync::oneshot::Sender<Handle>>,
+) -> Result<(), DaemonError> {
+    let shared = Arc::new(Shared::default());
+    let (stop_tx, stop_rx) = watch::channel(false);
+    let clock = Clock::new();
+    let nav = crate::nav::Navigator::new(&cfg.ins)?;
+    let (event_tx, event_rx) = mpsc::channel(EVENT_CHANNEL);
+    let frames = Arc::new(nav_thread::FrameQueue::new(cfg.camera.queue_frames));
+    let (latest_tx, latest_rx) = watch::channel(None::<Latest>);
+    let year = if cfg.navigation.mag_decimal_year != 0.0 {
+        cfg.navigation.mag_decimal_year
+    } else {
+        clock.decimal_year()
+    };
+    let (out_tx, out_rx) = mpsc::channel(OUTBOX);
+    let outbox = Outbox {
+        tx: out_tx,
+        shared: shared.clone(),
+    };
+    let cfg = Arc::new(cfg);
+    let publisher = publish::Publisher::new(cfg.clone(), clock, outbox.clone(), shared.clone());
+    let nav_join = nav_thread::spawn(
+        nav,
+        year,
+        event_rx,
+        frames.clone(),
+        latest_tx,
+        publisher,
+        shared.clone(),
+    )
+    .map_err(|e| DaemonError::Thread(e.to_string()))?;
+    if let Some(h) = handle_tx {
+        let _ = h.send(Handle {
+            shared: shared.clone(),
+            stop: stop_tx.clone(),
+        });
+    }
+    let mut tasks = tokio::task::JoinSet::new();
+    let (conn_tx, conn_rx) = watch::channel(None);
+    // The reader and the camera own the only senders: when both have stopped, the navigation
+    // thread sees the channel close and ends.
+    let cam_wake = event_tx.clone();
+    tasks.spawn(link::writer(
+        cfg.clone(),
+        out_rx,
+        conn_rx,
+        shared.clone(),
+        stop_rx.clone(),
+    ));
+    tasks.spawn(link::reader(
+        cfg.clone(),
+        clock,
+        conn_tx,
+        event_tx,
+        outbox.clone(),
+        shared.clone(),
+        stop_rx.clone(),
+    ));
+    tasks.spawn(link::timesync_requests(
+        cfg.clone(),
+        clock,
+        outbox.clone(),
+        shared.clone(),
+        stop_rx.clone(),
+    ));
+    tasks.spawn(link::interval_requests(
+        cfg.clone(),
+        outbox.clone(),
+        shared.clone(),
+        stop_rx.clone(),
+    ));
+    tasks.spawn(monitor(
+        cfg.clone(),
+        clock,
+        latest_rx,
+        outbox.clone(),
+        shared.clone(),
+        stop_rx.clone(),
+    ));
+    tasks.spawn(camera::run(
+        cfg.clone(),
+        clock,
+        frames,
+        cam_wake,
+        shared.clone(),
+        stop_rx.clone(),
+    ));
+    // Wait for the stop signal; tasks end by themselves on it.
+    let mut stop = stop_rx.clone();
+    let _ = stop.wait_for(|s| *s).await;
+    let _ = tokio::time::timeout(Duration::from_secs(2), async {
+        while tasks.join_next().await.is_some() {}
+    })
+    .await;
+    tasks.abort_all();
+    drop(outbox);
+    // The reader owned the event sender: the navigation thread sees the channel close.
+    tokio::task::spawn_blocking(move || nav_join.join())
+        .await
+        .map_err(|e| DaemonError::Thread(e.to_string()))?
+        .map_err(|_| DaemonError::Thread("panicked".to_owned()))?;
+    Ok(())
+}
+
+/// The output mode in force (auto resolved from the autopilot kind; `None` while unknown).
+pub fn resolved_mode(cfg: &DaemonConfig, kind: Option<AutopilotKind>) -> Option<OutputMode> {
+    match cfg.output.mode {
+        OutputMode::Auto => match kind {
+            Some(AutopilotKind::Px4) => Some(OutputMode::Odometry),
+            Some(AutopilotKind::Ardupilot) => Some(OutputMode::GpsInput),
+            _ => None,
+        },
+        m => Some(m),
+    }
+}
+
+/// Sleep helper that returns `true` when stopped.
+async fn stopped_after(stop: &mut watch::Receiver<bool>, d: Duration) -> bool {
+    // Ok(Err(_)): every sender is gone, which also means stop.
+    tokio::time::timeout(d, stop.wait_for(|s| *s)).await.is_ok()
+}
+
+/// Health flags watched by the monitor.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+struct Flags {
+    link_up: bool,
+    initialised: bool,
+    /// `None` until the first fix (the first fix is not a "regained").
+    gnss_ok: Option<bool>,
+    camera_ok: bool,
+    reset_counter: u8,
+}
+
+/// HEARTBEAT at 1 Hz, STATUSTEXT on state changes, counters in the log, sd_notify.
+async fn monitor(
+    cfg: Arc<DaemonConfig>,
+    clock: Clock,
+    latest: watch::Receiver<Option<Latest>>,
+    outbox: Outbox,
+    shared: Arc<Shared>,
+    mut stop: watch::Receiver<bool>,
+) {
+    use apm::MavSeverity as S;
+    // systemd: STATUS while waiting; READY=1 when the estimator first runs (so the start
+    // timeout, not the watchdog, covers the wait for the first fix); WATCHDOG=1 each second
+    // only while it runs.
+    let notifier = notify::Notifier::from_env();
+    if let Err(e) = notifier.notify("STATUS=waiting for the autopilot and a GNSS fix") {
+        tracing::warn!("sd_notify: {e}");
+    }
+    let mut ready_sent = false;
+    let mut flags = Flags::default();
+    let mut link_lost_at: Option<u64> = None;
+    let mut last_heartbeat_us: Option<u64> = None;
+    let mut last_log_us = 0_u64;
+    let camera_used = cfg.camera.source != crate::config::CameraSourceKind::None;
+    loop {
+        if stopped_after(&mut stop, Duration::from_millis(100)).await {
+            return;
+        }
+        let now = clock.now_us();
+        let st = shared.state(|s| s.clone());
+        let l = *latest.borrow();
+        // Link.
+        let link_up = st
+            .last_rx_us
+            .is_some_and(|t| now.saturating_sub(t) < (cfg.mavlink.link_timeout_s * 1e6) as u64);
+        if flags.link_up && !link_up {
+            shared.count(|c| c.link_losses += 1);
+            link_lost_at = Some(now);
+            tracing::warn!("link to the autopilot lost");
+        } else if !flags.link_up
+            && link_up
+            && let Some(t) = link_lost_at.take()
+        {
+            let s = (now - t) as f64 / 1e6;
+            outbox.status(
+                S::MAV_SEVERITY_NOTICE,
+                &format!("ianav: link restored ({s:.0} s)"),
+            );
+            // The autopilot may have restarted meanwhile: ask for the streams again.
+            shared.state(|s| s.request_generation += 1);
+        }
+        flags.link_up = link_up;
+        // Estimator.
+        if let Some(l) = l {
+            if !flags.initialised {
+                flags.initialised = true;
+                flags.reset_counter = l.sol.reset_counter;
+                outbox.status(S::MAV_SEVERITY_INFO, "ianav: INS initialised");
+            } else if l.sol.reset_counter != flags.reset_counter {
+                flags.reset_counter = l.sol.reset_counter;
+                outbox.status(S::MAV_SEVERITY_WARNING, "ianav: estimator reset");
+            }
+        }
+        let timeout_us = (cfg.input.gnss_loss_timeout_s * 1e6) as u64;
+        let gnss_ok = st
+            .last_fix_us
+            .is_some_and(|t| now.saturating_sub(t) < timeout_us);
+        if st.last_fix_us.is_some() && flags.gnss_ok.is_some_and(|was| was != gnss_ok) {
+            if gnss_ok {
+                outbox.status(S::MAV_SEVERITY_NOTICE, "ianav: GNSS regained");
+            } else {
+                outbox.status(
+                    S::MAV_SEVERITY_WARNING,
+                    "ianav: GNSS lost, INS dead reckoning",
+                );
+            }
+        }
+        if st.last_fix_us.is_some() {
+            flags.gnss_ok = Some(gnss_ok);
+        }
+        if camera_used {
+            let cam_ok = st
+                .last_frame_us
+                .is_some_and(|t| now.saturating_sub(t) < (cfg.camera.timeout_s * 1e6) as u64);
+            if cam_ok != flags.camera_ok && (cam_ok || st.last_frame_us.is_some()) {
+                if cam_ok {
+                    outbox.status(S::MAV_SEVERITY_INFO, "ianav: camera frames received");
+                } else {
+                    outbox.status(S::MAV_SEVERITY_WARNING, "ianav: camera lost");
+                }
+            }
+            flags.camera_ok = cam_ok;
+        }
+        // Fresh = computed from an IMU message received less than 0.5 s ago (real time, so
+        // it also holds with the autopilot clock).
+        let running =
+            l.is_some_and(|l| l.imu_rx.elapsed() < Duration::from_micros(MAX_SOLUTION_AGE_US));
+        if l.is_some() && !running {
+            // Nothing is published from a stale solution (the publisher runs on new ones).
+            shared.count(|c| c.publish_stale += 1);
+        }
+        // HEARTBEAT at 1 Hz (sent regardless of the link: UDP/routers learn us from it).
+        if last_heartbeat_us.is_none_or(|t| now.saturating_sub(t) >= 1_000_000) {
+            last_heartbeat_us = Some(now);
+            let health = match (
+                running,
+                l.is_some_and(|l| l.sol.ins.gnss_denied) || !gnss_ok,
+            ) {
+                (false, _) => Health::Standby,
+                (true, false) => Health::Active,
+                (true, true) => Health::Critical,
+            };
+            outbox.send(apm::MavMessage::HEARTBEAT(mavlink_out::heartbeat(health)));
+            // The watchdog is fed only while the estimator runs.
+            let msg = match (running, ready_sent) {
+                (true, false) => Some("READY=1\nSTATUS=estimator running\nWATCHDOG=1"),
+                (true, true) => Some("WATCHDOG=1"),
+                (false, _) => None,
+            };
+            if let Some(m) = msg {
+                ready_sent = true;
+                if let Err(e) = notifier.notify(m) {
+                    tracing::warn!("sd_notify: {e}");
+                }
+            }
+        }
+        let period_us = (cfg.logging.counters_period_s * 1e6) as u64;
+        if period_us > 0 && now.saturating_sub(last_log_us) >= period_us {
+            last_log_us = now;
+            log_counters(&shared.counters());
+        }
+    }
+}
+
+/// One log line with the counters that matter in operation.
+pub fn log_counters(c: &Counters) {
+    tracing::info!(
+        rx = c.rx_frames,
+        rx_v1 = c.rx_v1_frames,
+        parse_err = c.rx_parse_errors,
+        foreign = c.rx_foreign,
+        imu = c.input.imu,
+        air = c.input.air,
+        mag = c.input.mag,
+        gnss = c.input.gnss,
+        rejected = c.input.rejected(),
+        time_order = c.time_order_rejected,
+        ts_samples = c.timesync.samples,
+        reboots = c.autopilot_reboots,
+        solutions = c.solutions,
+        published = c.published,
+        stale = c.publish_stale,
+        tx = c.tx_messages,
+        tx_failed = c.tx_failed,
+        tx_full = c.tx_queue_full,
+        frames = c.frames_received,
+        frames_dropped = c.frames_dropped,
+        camera_err = c.camera_errors,
+        latency_samples = c.latency_samples,
+        latency_max_us = c.latency_max_us,
+        "counters"
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// The memory bound stated in docs/DAEMON.md: queue capacities × element sizes.
+    #[test]
+    fn queue_elements_are_small_enough_for_the_stated_memory_bound() {
+        let nav = std::mem::size_of::<nav_thread::NavInput>();
+        let out = std::mem::size_of::<Outgoing>();
+        eprintln!("NavInput {nav} B, Outgoing {out} B");
+        assert!(nav <= 128, "NavInput is {nav} B");
+        assert!(out <= 320, "Outgoing is {out} B");
+        // 2,048 × 128 B + 256 × 320 B < 350 kB.
+        const { assert!(EVENT_CHANNEL * 128 + OUTBOX * 320 < 350_000) };
+    }
+}

@@ -1,0 +1,195 @@
+//! The navigation OS thread (ARCHITECTURE "The daemon"): owns the [`Navigator`], fed by a
+//! bounded channel of sensor events (the sender waits when it is full: IMU, air, magnetometer
+//! and GNSS are never dropped) and a small frame queue that drops its oldest frame when the
+//! thread is late. No clock here: it only feeds the synchronous core and publishes the latest
+//! solution.
+//!
+//! GNSS return: the INS latches its GNSS-denied mode. When valid fixes have come back
+//! continuously for [`REINIT_AFTER_US`] (sensor time), the thread re-initialises the INS at the
+//! newest fix with the current attitude and sensor-error estimates (cold-start σ). The reset
+//! counter increments, so consumers (ODOMETRY `reset_counter`, STATUSTEXT) see the jump.
+
+use std::collections::VecDeque;
+use std::sync::{Arc, Mutex};
+use std::time::Instant;
+
+use tokio::sync::{mpsc, watch};
+
+use super::{Latest, Shared};
+use crate::ins::InsInit;
+use crate::nav::Navigator;
+use crate::sensors::{Frame, SensorEvent};
+
+/// Continuous valid GNSS after a loss that re-initialises the INS, µs.
+pub const REINIT_AFTER_US: u64 = 5_000_000;
+/// A gap between fixes longer than this restarts the count, µs.
+pub const REINIT_MAX_FIX_GAP_US: u64 = 1_500_000;
+
+/// Input of the navigation thread.
+#[derive(Debug)]
+pub enum NavInput {
+    /// (Re)initialise the INS.
+    Init(Box<InsInit>),
+    /// A sensor event and the reception time of its message.
+    Event(SensorEvent, Instant),
+    /// Frames are waiting in the [`FrameQueue`] (sent with `try_send`: when the channel is
+    /// full, events are flowing and the frames are taken with them).
+    FramesReady,
+}
+
+/// Bounded frame queue, oldest dropped first.
+#[derive(Debug)]
+pub struct FrameQueue {
+    cap: usize,
+    q: Mutex<VecDeque<Frame>>,
+}
+
+impl FrameQueue {
+    /// A queue of at most `cap` frames.
+    pub fn new(cap: usize) -> Self {
+        Self {
+            cap: cap.max(1),
+            q: Mutex::new(VecDeque::with_capacity(cap.max(1))),
+        }
+    }
+
+    /// Add a frame; returns how many old frames were dropped to make room.
+    pub fn push(&self, f: Frame) -> u64 {
+        let mut q = self
+            .q
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let mut dropped = 0;
+        while q.len() >= self.cap {
+            q.pop_front();
+            dropped += 1;
+        }
+        q.push_back(f);
+        dropped
+    }
+
+    /// Take every queued frame, oldest first.
+    pub fn drain(&self) -> Vec<Frame> {
+        let mut q = self
+            .q
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        q.drain(..).collect()
+    }
+}
+
+/// Start the thread. It ends when the event channel closes.
+pub fn spawn(
+    mut nav: Navigator,
+    mag_decimal_year: f64,
+    mut rx: mpsc::Receiver<NavInput>,
+    frames: Arc<FrameQueue>,
+    latest: watch::Sender<Option<Latest>>,
+    mut publisher: super::publish::Publisher,
+    shared: Arc<Shared>,
+) -> std::io::Result<std::thread::JoinHandle<()>> {
+    std::thread::Builder::new()
+        .name("ianav-nav".to_owned())
+        .spawn(move || {
+            let mut since_sync = 0_u32;
+            let mut last: Option<crate::nav::NavSolution> = None;
+            // (first, newest) fix time of the current run of fixes while GNSS-denied.
+            let mut back: Option<(u64, u64)> = None;
+            while let Some(input) = rx.blocking_recv() {
+                for f in frames.drain() {
+                    nav.push(&SensorEvent::Frame(f));
+                }
+                match input {
+                    NavInput::Init(init) => match nav.initialise(&init) {
+                        Ok(()) => tracing::info!(
+                            lat_deg = init.pos.lat_rad.to_degrees(),
+                            lon_deg = init.pos.lon_rad.to_degrees(),
+                            h_m = init.pos.h_m,
+                            "INS initialised"
+                        ),
+                        Err(e) => tracing::warn!("INS initialisation refused: {e}"),
+                    },
+                    NavInput::FramesReady => {}
+                    NavInput::Event(ev, rx_at) => {
+                        if let (SensorEvent::Gnss(fix), Some(sol)) = (&ev, last) {
+                            if nav.gnss_denied() {
+                                let (first, _) = match back {
+                                    Some((f, n))
+                                        if fix.t_us.saturating_sub(n) <= REINIT_MAX_FIX_GAP_US =>
+                                    {
+                                        (f, n)
+                                    }
+                                    _ => (fix.t_us, fix.t_us),
+                                };
+                                back = Some((first, fix.t_us));
+                                if fix.t_us.saturating_sub(first) >= REINIT_AFTER_US {
+                                    back = None;
+                                    let mut init = InsInit::new(
+                                        sol.ins.q_nb,
+                                        fix.pos,
+                                        fix.v_ned_mps,
+                                        mag_decimal_year,
+                                    );
+                                    init.e_gyr_rps = sol.ins.e_gyr_rps;
+                                    init.e_acc_mps2 = sol.ins.e_acc_mps2;
+                                    init.e_mag_nt = sol.ins.e_mag_nt;
+                                    init.delta_b_n_nt = sol.ins.delta_b_n_nt;
+                                    init.aoa_rad = sol.ins.aoa_rad;
+                                    match nav.initialise(&init) {
+                                        Ok(()) => tracing::warn!(
+                                            "GNSS back for 5 s: INS re-initialised at the fix"
+                                        ),
+                                        Err(e) => {
+                                            tracing::warn!("INS re-initialisation refused: {e}")
+                                        }
+                                    }
+                                }
+                            } else {
+                                back = None;
+                            }
+                        }
+                        if let Some(sol) = nav.push(&ev) {
+                            last = Some(sol);
+                            publisher.on_solution(&sol, rx_at);
+                            latest.send_replace(Some(Latest { sol, imu_rx: rx_at }));
+                            shared.count(|c| c.solutions += 1);
+                        }
+                    }
+                }
+                since_sync += 1;
+                if since_sync >= 50 || rx.is_empty() {
+                    since_sync = 0;
+                    let (n, i) = (*nav.stats(), nav.ins_stats().copied());
+                    shared.count(|c| {
+                        c.nav = n;
+                        c.ins = i;
+                    });
+                }
+            }
+        })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn frame(t_us: u64) -> Frame {
+        Frame {
+            t_us,
+            width: 1,
+            height: 1,
+            pixels: Arc::from(vec![0_u8]),
+        }
+    }
+
+    #[test]
+    fn the_frame_queue_drops_the_oldest() {
+        let q = FrameQueue::new(2);
+        assert_eq!(q.push(frame(1)), 0);
+        assert_eq!(q.push(frame(2)), 0);
+        assert_eq!(q.push(frame(3)), 1);
+        let t: Vec<u64> = q.drain().iter().map(|f| f.t_us).collect();
+        assert_eq!(t, vec![2, 3]);
+        assert!(q.drain().is_empty());
+    }
+}

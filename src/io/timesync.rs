@@ -1,0 +1,471 @@
+//! Autopilot time → the daemon's monotonic clock (issue 5 item 1; MAVLink "Time
+//! Synchronization Protocol v2", TIMESYNC #111; research/mavlink.md §3.4). Pure: every
+//! function takes the current time of the daemon's clock as an argument.
+//!
+//! - Both sides of TIMESYNC: a request `tc1 = 0` from the autopilot is answered with our time
+//!   in `tc1` and its `ts1` echoed; our requests carry our time in `ts1`, and a response gives
+//!   one offset sample `(ts1 + now) / 2 − tc1` (our clock minus the autopilot's), used only when
+//!   the round trip is below the configured limit. The samples are averaged (1/n for the first
+//!   [`WARMUP_SAMPLES`], then an exponential filter of gain [`ALPHA`]); [`RESET_AFTER`]
+//!   consecutive samples farther than [`OUTLIER_NS`] from the estimate restart it (a clock jump).
+//! - Until TIMESYNC has converged, the offset is the lower envelope of `receipt − stamp` over
+//!   the clock messages (IMU, ATTITUDE): transport delay is never negative, so the minimum is
+//!   the offset plus the smallest latency. The envelope rises by [`ENVELOPE_LEAK_US`] per
+//!   sample to follow clock drift.
+//! - Reboot: a clock message whose stamp is more than [`REBOOT_BACKSTEP_US`] older than the
+//!   newest one seen means the autopilot restarted; the sync is reset and the caller re-requests
+//!   its message intervals. (A sequence-number reset alone is not used: on UDP it also follows
+//!   packet loss and reordering.)
+//! - Autopilot clock ([`TimeSync::with_autopilot_clock`], for a simulated vehicle running
+//!   faster than real time, where the daemon's clock would compress every Δt): `t_us` is the
+//!   autopilot's own time, continued across reboots (each reboot adds the newest time seen
+//!   before it); unstamped messages take the newest clock-message stamp.
+//! - [`MonotonicGate`]: per sensor kind, mapped times must strictly increase; duplicates and
+//!   out-of-order samples are rejected and counted.
+
+use crate::io::mavlink_in::ApTime;
+use mavlink::dialects::ardupilotmega as apm;
+
+/// Offset samples averaged uniformly before the exponential filter takes over.
+pub const WARMUP_SAMPLES: u32 = 10;
+/// Gain of the exponential offset filter.
+pub const ALPHA: f64 = 0.05;
+/// A sample farther than this from the estimate is an outlier, ns.
+pub const OUTLIER_NS: f64 = 20e6;
+/// Consecutive outliers that restart the estimate.
+pub const RESET_AFTER: u32 = 5;
+/// A clock message this much older than the newest seen means a reboot, µs.
+pub const REBOOT_BACKSTEP_US: u64 = 1_000_000;
+/// Rise of the receipt envelope per clock message, µs.
+pub const ENVELOPE_LEAK_US: i64 = 1;
+/// Stamps above this are Unix times, not boot times (≈ 31.7 years), µs.
+pub const UNIX_STAMP_US: u64 = 1_000_000_000_000_000;
+/// A mapped time older than this at reception is refused, µs.
+pub const MAX_AGE_US: u64 = 2_000_000;
+
+/// Counters of the time synchronisation.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct TimeSyncCounters {
+    /// TIMESYNC requests from the autopilot answered.
+    pub answered: u64,
+    /// Responses to our requests used.
+    pub samples: u64,
+    /// Responses refused for a long round trip (or a `ts1` that is not ours).
+    pub rtt_rejected: u64,
+    /// Offset samples counted as outliers.
+    pub outliers: u64,
+    /// Filter restarts after consecutive outliers.
+    pub resets: u64,
+    /// Reboots of the autopilot detected.
+    pub reboots: u64,
+    /// Stamps that looked like Unix time (reception time used instead).
+    pub unix_stamps: u64,
+    /// Stamps refused because the mapped time was implausible.
+    pub implausible: u64,
+}
+
+/// Offset estimator and time mapper.
+#[derive(Debug, Clone)]
+pub struct TimeSync {
+    max_rtt_ns: u64,
+    /// Our clock minus the autopilot's, ns (TIMESYNC).
+    offset_ns: Option<f64>,
+    n: u32,
+    consecutive_outliers: u32,
+    /// Receipt envelope, µs.
+    envelope_us: Option<i64>,
+    /// Newest clock-message stamp, µs of autopilot boot time.
+    newest_ap_us: Option<u64>,
+    counters: TimeSyncCounters,
+    /// Use the autopilot's time as `t_us` (plus `epoch_us`).
+    autopilot_clock: bool,
+    /// Sum of the autopilot times reached before each reboot, µs.
+    epoch_us: u64,
+}
+
+impl TimeSync {
+    /// An estimator using round trips up to `max_rtt_ns`.
+    pub fn new(max_rtt_ns: u64) -> Self {
+        Self {
+            max_rtt_ns,
+            offset_ns: None,
+            n: 0,
+            consecutive_outliers: 0,
+            envelope_us: None,
+            newest_ap_us: None,
+            counters: TimeSyncCounters::default(),
+            autopilot_clock: false,
+            epoch_us: 0,
+        }
+    }
+
+    /// Map to the autopilot's own (reboot-continued) time instead of the daemon's clock.
+    pub fn with_autopilot_clock(mut self) -> Self {
+        self.autopilot_clock = true;
+        self
+    }
+
+    /// The offset that maps a vehicle time (camera frame stamps) to `t_us`: the TIMESYNC /
+    /// envelope offset, or the reboot epoch with the autopilot clock.
+    pub fn vehicle_offset_us(&self) -> Option<i64> {
+        if self.autopilot_clock {
+            i64::try_from(self.epoch_us).ok()
+        } else {
+            self.offset_us()
+        }
+    }
+
+    /// Counters.
+    pub fn counters(&self) -> &TimeSyncCounters {
+        &self.counters
+    }
+
+    /// Whether TIMESYNC has given enough samples to be used.
+    pub fn converged(&self) -> bool {
+        self.offset_ns.is_some() && self.n >= 3
+    }
+
+    /// The offset in use (our µs − autopilot µs), if any.
+    pub fn offset_us(&self) -> Option<i64> {
+        if self.converged() {
+            self.offset_ns.map(|o| (o / 1e3).round() as i64)
+        } else {
+            self.envelope_us
+        }
+    }
+
+    /// Our request at `now_ns`.
+    pub fn request(now_ns: u64, target_system: u8, target_component: u8) -> apm::TIMESYNC_DATA {
+        apm::TIMESYNC_DATA {
+            tc1: 0,
+            ts1: i64::try_from(now_ns).unwrap_or(i64::MAX),
+            target_system,
+            target_component,
+        }
+    }
+
+    /// Handle a TIMESYNC message received at `now_ns` from (`sys`, `comp`). A request is
+    /// answered (the reply is returned); a response to one of our requests updates the offset.
+    pub fn handle(
+        &mut self,
+        m: &apm::TIMESYNC_DATA,
+        now_ns: u64,
+        sys: u8,
+        comp: u8,
+    ) -> Option<apm::TIMESYNC_DATA> {
+        if m.tc1 == 0 {
+            self.counters.answered += 1;
+            return Some(apm::TIMESYNC_DATA {
+                tc1: i64::try_from(now_ns).unwrap_or(i64::MAX),
+                ts1: m.ts1,
+                target_system: sys,
+                target_component: comp,
+            });
+        }
+        self.response(m.tc1, m.ts1, now_ns);
+        None
+    }
+
+    fn response(&mut self, tc1_ns: i64, ts1_ns: i64, now_ns: u64) {
+        let Ok(ts1) = u64::try_from(ts1_ns) else {
+            self.counters.rtt_rejected += 1;
+            return;
+        };
+        if ts1 > now_ns || now_ns - ts1 > self.max_rtt_ns {
+            self.counters.rtt_rejected += 1;
+            return;
+        }
+        let sample = (ts1 as f64 + now_ns as f64) / 2.0 - tc1_ns as f64;
+        self.counters.samples += 1;
+        match self.offset_ns {
+            None => {
+                self.offset_ns = Some(sample);
+                self.n = 1;
+            }
+            Some(o) => {
+                let dev = sample - o;
+                if dev.abs() > OUTLIER_NS {
+                    self.counters.outliers += 1;
+                    self.consecutive_outliers += 1;
+                    if self.consecutive_outliers >= RESET_AFTER {
+                        self.counters.resets += 1;
+                        self.offset_ns = Some(sample);
+                        self.n = 1;
+                        self.consecutive_outliers = 0;
+                    }
+                    return;
+                }
+                self.consecutive_outliers = 0;
+                self.n = self.n.saturating_add(1);
+                let gain = if self.n <= WARMUP_SAMPLES {
+                    1.0 / f64::from(self.n)
+                } else {
+                    ALPHA
+                };
+                self.offset_ns = Some(o + gain * dev);
+            }
+        }
+    }
+
+    /// Note the stamp of a clock message (IMU, ATTITUDE, SYSTEM_TIME) received at `rx_us`.
+    /// Returns `true` when it reveals an autopilot reboot (the sync is then reset).
+    pub fn observe_clock(&mut self, ap_us: u64, rx_us: u64) -> bool {
+        if ap_us >= UNIX_STAMP_US {
+            return false;
+        }
+        let mut reboot = false;
+        if let Some(newest) = self.newest_ap_us
+            && ap_us.saturating_add(REBOOT_BACKSTEP_US) < newest
+        {
+            self.counters.reboots += 1;
+            // Autopilot clock: continue after the last time of the previous boot.
+            self.epoch_us = self.epoch_us.saturating_add(newest + 1);
+            self.offset_ns = None;
+            self.n = 0;
+            self.consecutive_outliers = 0;
+            self.envelope_us = None;
+            self.newest_ap_us = None;
+            reboot = true;
+        }
+        self.newest_ap_us = Some(self.newest_ap_us.map_or(ap_us, |n| n.max(ap_us)));
+        let sample = rx_us as i64 - ap_us as i64;
+        self.envelope_us = Some(match self.envelope_us {
+            Some(e) => (e + ENVELOPE_LEAK_US).min(sample),
+            None => sample,
+        });
+        reboot
+    }
+
+    /// Map a message stamp received at `rx_us` to the daemon's clock, µs. `None` when no
+    /// offset is known yet or the result is implausible (counted).
+    pub fn map(&mut self, t: ApTime, rx_us: u64) -> Option<u64> {
+        if self.autopilot_clock {
+            let newest = self.newest_ap_us.map(|n| n.saturating_add(self.epoch_us));
+            return match t {
+                ApTime::Receipt => newest,
+                ApTime::BootUs(u) if u >= UNIX_STAMP_US => {
+                    self.counters.unix_stamps += 1;
+                    newest
+                }
+                ApTime::BootUs(u) => Some(u.saturating_add(self.epoch_us)),
+                ApTime::BootMs(m) => Some((u64::from(m) * 1_000).saturating_add(self.epoch_us)),
+            };
+        }
+        let ap_us = match t {
+            ApTime::Receipt => return Some(rx_us),
+            ApTime::BootUs(u) => u,
+            ApTime::BootMs(m) => u64::from(m) * 1_000,
+        };
+        if ap_us >= UNIX_STAMP_US {
+            self.counters.unix_stamps += 1;
+            return Some(rx_us);
+        }
+        let offset = self.offset_us()?;
+        let mapped = i64::try_from(ap_us).ok()?.checked_add(offset)?;
+        let Ok(mapped) = u64::try_from(mapped) else {
+            self.counters.implausible += 1;
+            return None;
+        };
+        if mapped.saturating_add(MAX_AGE_US) < rx_us {
+            self.counters.implausible += 1;
+            return None;
+        }
+        // A sample cannot be taken after it was received (offset error, small jitter).
+        Some(mapped.min(rx_us))
+    }
+}
+
+/// Sensor kinds for [`MonotonicGate`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Kind {
+    /// IMU.
+    Imu = 0,
+    /// Air data.
+    Air = 1,
+    /// Magnetometer.
+    Mag = 2,
+    /// GNSS.
+    Gnss = 3,
+    /// Camera frames.
+    Frame = 4,
+}
+
+/// Per-kind strictly increasing times.
+#[derive(Debug, Clone, Default)]
+pub struct MonotonicGate {
+    last_us: [Option<u64>; 5],
+    /// Samples refused as duplicate or out of order.
+    pub rejected: u64,
+}
+
+impl MonotonicGate {
+    /// Accept `t_us` for `kind` if it is after the previous accepted one.
+    pub fn accept(&mut self, kind: Kind, t_us: u64) -> bool {
+        let slot = &mut self.last_us[kind as usize];
+        if slot.is_some_and(|last| t_us <= last) {
+            self.rejected += 1;
+            return false;
+        }
+        *slot = Some(t_us);
+        true
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    const MS: u64 = 1_000_000; // ns
+
+    /// Simulated exchange: the autopilot's clock is ours − `offset_ns`; the request takes
+    /// `up` ns to arrive and the response `down` ns to come back.
+    fn exchange(ts: &mut TimeSync, t0: u64, offset_ns: i64, up: u64, down: u64) {
+        let req = TimeSync::request(t0, 1, 1);
+        let ap_now = (t0 + up) as i64 - offset_ns;
+        let resp = apm::TIMESYNC_DATA {
+            tc1: ap_now,
+            ts1: req.ts1,
+            target_system: 1,
+            target_component: 197,
+        };
+        assert!(ts.handle(&resp, t0 + up + down, 1, 1).is_none());
+    }
+
+    #[test]
+    fn requests_are_answered_with_our_time_and_their_ts1() {
+        let mut ts = TimeSync::new(10 * MS);
+        let req = apm::TIMESYNC_DATA {
+            tc1: 0,
+            ts1: 123_456,
+            target_system: 0,
+            target_component: 0,
+        };
+        let r = ts.handle(&req, 5_000_000_000, 1, 1).unwrap();
+        assert_eq!(
+            (r.tc1, r.ts1, r.target_system, r.target_component),
+            (5_000_000_000, 123_456, 1, 1)
+        );
+        assert_eq!(ts.counters().answered, 1);
+    }
+
+    #[test]
+    fn symmetric_round_trips_give_the_exact_offset_and_long_ones_are_refused() {
+        let mut ts = TimeSync::new(10 * MS);
+        let offset = 7_000_000_000_i64; // our clock reads 7 s more than the autopilot's
+        for k in 0..20 {
+            exchange(&mut ts, 10_000 * MS + k * 200 * MS, offset, 2 * MS, 2 * MS);
+        }
+        assert!(ts.converged());
+        assert_eq!(ts.offset_us(), Some(offset / 1000));
+        // A 30 ms round trip is not used.
+        exchange(&mut ts, 20_000 * MS, 0, 15 * MS, 15 * MS);
+        assert_eq!(ts.counters().rtt_rejected, 1);
+        assert_eq!(ts.offset_us(), Some(offset / 1000));
+        // Asymmetric delay: the error is half the asymmetry (1 ms up, 5 ms down → −2 ms).
+        let mut ts = TimeSync::new(10 * MS);
+        for k in 0..20 {
+            exchange(&mut ts, 10_000 * MS + k * 100 * MS, 0, MS, 5 * MS);
+        }
+        assert_eq!(ts.offset_us(), Some(2_000));
+    }
+
+    #[test]
+    fn isolated_outliers_are_ignored_and_a_clock_jump_restarts_the_filter() {
+        let mut ts = TimeSync::new(10 * MS);
+        for k in 0..20 {
+            exchange(
+                &mut ts,
+                10_000 * MS + k * 100 * MS,
+                1_000 * MS as i64,
+                MS,
+                MS,
+            );
+        }
+        // One 100 ms outlier: ignored.
+        exchange(&mut ts, 13_000 * MS, 1_100 * MS as i64, MS, MS);
+        assert_eq!(ts.offset_us(), Some(1_000_000));
+        assert_eq!(ts.counters().outliers, 1);
+        for k in 0..RESET_AFTER as u64 {
+            exchange(
+                &mut ts,
+                14_000 * MS + k * 100 * MS,
+                1_500 * MS as i64,
+                MS,
+                MS,
+            );
+        }
+        assert_eq!(ts.counters().resets, 1);
+        for k in 0..5 {
+            exchange(
+                &mut ts,
+                15_000 * MS + k * 100 * MS,
+                1_500 * MS as i64,
+                MS,
+                MS,
+            );
+        }
+        assert_eq!(ts.offset_us(), Some(1_500_000));
+    }
+
+    #[test]
+    fn envelope_maps_before_timesync_and_a_reboot_is_detected() {
+        let mut ts = TimeSync::new(10 * MS);
+        assert_eq!(ts.map(ApTime::BootMs(10), 1_000), None, "no offset yet");
+        // Autopilot boot time 0 = our 5 s; latency 3 ms, once only 1 ms.
+        for k in 0..100_u64 {
+            let ap = k * 20_000;
+            let lat = if k == 50 { 1_000 } else { 3_000 };
+            assert!(!ts.observe_clock(ap, 5_000_000 + ap + lat));
+        }
+        let off = ts.offset_us().unwrap();
+        // Envelope = 5 s + 1 ms, plus at most 49 µs of leak since the 1 ms sample.
+        assert!((5_001_000..=5_001_049).contains(&off), "{off}");
+        assert_eq!(
+            ts.map(ApTime::BootMs(1_000), 6_010_000),
+            Some(1_000_000 + off as u64)
+        );
+        // Receipt and Unix stamps use the reception time.
+        assert_eq!(ts.map(ApTime::Receipt, 42), Some(42));
+        assert_eq!(ts.map(ApTime::BootUs(1_700_000_000_000_000), 43), Some(43));
+        // A stamp mapping 3 s before its reception is refused.
+        assert_eq!(ts.map(ApTime::BootUs(0), 8_010_000), None);
+        // Reboot: time goes back from 1.98 s to 0.
+        assert!(ts.observe_clock(0, 20_000_000));
+        assert_eq!(ts.counters().reboots, 1);
+        assert_eq!(ts.offset_us(), Some(20_000_000));
+        assert!(!ts.observe_clock(10_000, 20_010_500));
+    }
+
+    #[test]
+    fn the_autopilot_clock_is_used_as_is_and_continued_across_a_reboot() {
+        let mut ts = TimeSync::new(10 * MS).with_autopilot_clock();
+        assert_eq!(ts.map(ApTime::Receipt, 5), None, "no clock message yet");
+        // The vehicle runs 10× faster than our clock: its times are used unchanged.
+        for k in 0..30_u64 {
+            assert!(!ts.observe_clock(k * 100_000, 1_000_000 + k * 10_000));
+        }
+        assert_eq!(ts.map(ApTime::BootUs(2_900_000), 0), Some(2_900_000));
+        assert_eq!(ts.map(ApTime::BootMs(3_000), 0), Some(3_000_000));
+        assert_eq!(
+            ts.map(ApTime::Receipt, 0),
+            Some(2_900_000),
+            "newest clock stamp"
+        );
+        assert_eq!(ts.vehicle_offset_us(), Some(0));
+        // Reboot at 2.9 s: the new boot's time 0 continues at 2.9 s + 1 µs.
+        assert!(ts.observe_clock(0, 2_000_000));
+        assert_eq!(ts.map(ApTime::BootUs(0), 0), Some(2_900_001));
+        assert_eq!(ts.vehicle_offset_us(), Some(2_900_001));
+    }
+
+    #[test]
+    fn the_gate_refuses_duplicates_and_reordering_per_kind() {
+        let mut g = MonotonicGate::default();
+        assert!(g.accept(Kind::Imu, 10));
+        assert!(g.accept(Kind::Air, 5), "kinds are independent");
+        assert!(!g.accept(Kind::Imu, 10));
+        assert!(!g.accept(Kind::Imu, 9));
+        assert!(g.accept(Kind::Imu, 11));
+        assert_eq!(g.rejected, 2);
+    }
+}
