@@ -273,10 +273,9 @@ async fn fly(setup: &FlightSetup, seed: u64, autopilot: Autopilot, daemon_toml: 
     let handle = hrx.await.unwrap();
     let to_daemon = accept(&daemon_side, "the daemon").await;
 
-    let dir = std::env::temp_dir().join(format!(
-        "ianav_e2e_{}_{seed}_{autopilot:?}",
-        std::process::id()
-    ));
+    static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("ianav_e2e_{}_{n}", std::process::id()));
     let options = SitlOptions {
         connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
         vehicle: VehicleConfig {
