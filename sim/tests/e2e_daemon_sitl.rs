@@ -777,7 +777,9 @@ async fn denied_horizontal_error_equals_the_offline_ins() {
 
 /// Issue 5 item 1: the daemon's errors with a 25 Hz IMU (ArduPilot mode: RAW_IMU and air
 /// data at 25 Hz, box-averaged) versus 100 Hz (PX4 mode), same seeds. Run with
-/// `--ignored --nocapture` (about 35 s per run, 2 runs per seed).
+/// `--ignored --nocapture` (about 38 s per run, 2 runs per seed). While the daemon's cold
+/// start diverges (docs/E2E.md) the errors measure that divergence, so no ratio between the
+/// rates is asserted: only that every sample is decoded and none refused at either rate.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "measurement, ~4 min"]
 async fn imu_at_25_hz_versus_100_hz() {
