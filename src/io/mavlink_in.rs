@@ -291,6 +291,10 @@ impl InputDecoder {
         if let Err(r) = self.decode_into(msg, map, &mut out) {
             self.counters.count(r);
         }
+        // Aiding samples before the IMU sample of the same message: the INS fuses air,
+        // magnetometer and GNSS samples at the next IMU step (docs/INS.md), so IMU first
+        // would delay them by one IMU period. Stable: the rest keep their order.
+        out.sort_by_key(|e| matches!(e, SensorEvent::Imu(_)));
         for e in &out {
             match e {
                 SensorEvent::Imu(_) => self.counters.imu += 1,
@@ -655,18 +659,18 @@ mod tests {
         d.decode(&vfr(30.0), &mut map);
         let ev = d.decode(&apm::MavMessage::HIGHRES_IMU(highres(0x1fff)), &mut map);
         assert_eq!(ev.len(), 3);
-        let SensorEvent::Imu(imu) = &ev[0] else {
+        let SensorEvent::Imu(imu) = &ev[2] else {
             panic!()
         };
         assert_eq!(imu.t_us, 1_000_000);
         assert!((imu.accel_mps2 - Vector3::new(1.0, -2.0, -9.80665)).norm() < 1e-5);
         assert!((imu.gyro_rps.z + 0.2).abs() < 1e-7);
-        let SensorEvent::Mag(mag) = &ev[1] else {
+        let SensorEvent::Mag(mag) = &ev[0] else {
             panic!()
         };
         // 0.2 G = 20,000 nT.
         assert!((mag.mag_b_nt - Vector3::new(20_000.0, -5_000.0, 45_000.0)).norm() < 0.01);
-        let SensorEvent::Air(air) = &ev[2] else {
+        let SensorEvent::Air(air) = &ev[1] else {
             panic!()
         };
         // ISA sea level: 1013.25 hPa, 15 °C, ρ = ρ₀ → TAS = EAS.
@@ -736,14 +740,14 @@ mod tests {
             temperature: 0,
         };
         let ev = d.decode(&apm::MavMessage::SCALED_IMU(m.clone()), &mut map);
-        let SensorEvent::Imu(imu) = &ev[0] else {
+        let SensorEvent::Imu(imu) = &ev[1] else {
             panic!()
         };
         assert_eq!(imu.t_us, 20_000);
         // 1000 mG = g; 100 mrad/s = 0.1 rad/s; 200 mgauss = 20,000 nT.
         assert!((imu.accel_mps2 - Vector3::new(G_MPS2, 0.0, -G_MPS2)).norm() < 1e-12);
         assert!((imu.gyro_rps - Vector3::new(0.1, -0.05, 0.0)).norm() < 1e-12);
-        let SensorEvent::Mag(mag) = &ev[1] else {
+        let SensorEvent::Mag(mag) = &ev[0] else {
             panic!()
         };
         assert!((mag.mag_b_nt - Vector3::new(20_000.0, 0.0, 45_000.0)).norm() < 1e-9);

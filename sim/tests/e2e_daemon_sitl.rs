@@ -1,0 +1,835 @@
+//! End-to-end acceptance of issue 5: the `ianav` daemon (in-process, `ianav::daemon::run`)
+//! navigates the SITL vehicle (`ianav_sim::sitl::run`) at 10× real time over loopback TCP,
+//! through a relay that forwards both directions unchanged and records the daemon's byte
+//! stream. Scenario #2 (50 s warm-up, GNSS lost at mission time 100 s), 300 s of mission.
+//!
+//! The vehicle does not fly on the daemon's position here, so it flies exactly the flight of
+//! an offline [`Flight`] with the same seed; the daemon's estimates are compared with that
+//! flight's own INS (the offline error) at the same instants, and with a replay of the same
+//! sensor samples into an INS started the way the daemon starts it (first fix, autopilot
+//! attitude, cold-start sensor errors), which separates what the daemon's initialisation
+//! changes from what MAVLink transport changes. See docs/E2E.md for the figures and the
+//! derivation of the tolerances.
+#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+
+use std::collections::BTreeMap;
+use std::time::Duration;
+
+use ianav::config::DaemonConfig;
+use ianav::daemon::{self, Counters};
+use ianav::ins::{Ins, InsConfig, InsInit};
+use ianav::math::map_projection::MapProjection;
+use ianav::math::so3;
+use ianav::math::wgs84::{self, Geodetic};
+use ianav::sensors::SensorEvent;
+use ianav_sim::flight::{Flight, FlightObserver, FlightSetup, TruthSample};
+use ianav_sim::sitl::{self, Autopilot, SitlOptions, SitlSummary, VehicleConfig};
+use mavlink::dialects::ardupilotmega as apm;
+use mavlink::{MAVLinkMessageRaw, Message};
+use nalgebra::UnitQuaternion;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+
+/// Mission duration flown (after the 50 s warm-up), s.
+const MISSION_S: f64 = 300.0;
+/// Simulated seconds per wall second.
+const SPEED: f64 = 10.0;
+/// ODOMETRY rate configured in the daemon, Hz.
+const ODOMETRY_HZ: f64 = 30.0;
+
+fn setup() -> FlightSetup {
+    let mut s = FlightSetup::builtin(2).unwrap();
+    s.scenario.duration_s = MISSION_S;
+    // Observer output every 10 ms (the IMU grid) so that every estimate the daemon stamps
+    // has an offline counterpart at the same instant; the flight itself does not change.
+    s.rates.output_period_s = 0.01;
+    s
+}
+
+/// Position and attitude at one instant.
+#[derive(Debug, Clone, Copy)]
+struct Pose {
+    pos: Geodetic,
+    q_nb: UnitQuaternion<f64>,
+}
+
+/// Errors of an estimate against the truth: horizontal (m), altitude (m), attitude norm (deg).
+#[derive(Debug, Clone, Copy, Default)]
+struct Err3 {
+    hor_m: f64,
+    alt_m: f64,
+    att_deg: f64,
+}
+
+fn errors(truth: &Pose, est: &Pose) -> Err3 {
+    let d = wgs84::ned_difference_m(&truth.pos, &est.pos);
+    Err3 {
+        hor_m: d.x.hypot(d.y),
+        alt_m: est.pos.h_m - truth.pos.h_m,
+        att_deg: so3::log(&(truth.q_nb.inverse() * est.q_nb))
+            .norm()
+            .to_degrees(),
+    }
+}
+
+/// The offline flight: truth and its own INS every 10 ms, and every sensor sample.
+#[derive(Default)]
+struct Offline {
+    truth: BTreeMap<u64, Pose>,
+    ins: BTreeMap<u64, Pose>,
+    events: Vec<SensorEvent>,
+    loss_us: u64,
+    warmup_us: u64,
+    errs: Option<ianav_sim::sensors::SensorErrors>,
+}
+
+impl FlightObserver for Offline {
+    fn sensor_event(&mut self, e: &SensorEvent) {
+        self.events.push(e.clone());
+    }
+    fn truth_sample(&mut self, t: &TruthSample) {
+        self.truth.insert(
+            t.t_us,
+            Pose {
+                pos: t.pos,
+                q_nb: t.q_nb,
+            },
+        );
+    }
+    fn nav_solution(&mut self, t: &TruthSample, s: &ianav::ins::InsSolution) {
+        self.ins.insert(
+            t.t_us,
+            Pose {
+                pos: s.pos,
+                q_nb: s.q_nb,
+            },
+        );
+    }
+}
+
+fn offline(setup: &FlightSetup, seed: u64) -> Offline {
+    let mut flight = Flight::new(setup, seed).unwrap();
+    let mut obs = Offline {
+        loss_us: flight.gnss_loss_t_us(),
+        warmup_us: flight.warmup_us(),
+        ..Offline::default()
+    };
+    while !flight.finished() {
+        flight.step(&mut obs).unwrap();
+        if obs.errs.is_none() && obs.events.iter().any(|e| matches!(e, SensorEvent::Gnss(_))) {
+            obs.errs = Some(flight.sensors().true_errors());
+        }
+    }
+    obs
+}
+
+/// The offline sensor samples into an INS started as the daemon starts it: at the first
+/// GNSS fix, from its position and velocity, the attitude the autopilot reports there (the
+/// truth: before its own INS starts the vehicle reports the truth), cold-start sensor
+/// errors. No transport: what the daemon's initialisation alone changes.
+fn replay_daemon_init(off: &Offline, mag_decimal_year: f64) -> BTreeMap<u64, Pose> {
+    replay_with(off, mag_decimal_year, |_| {})
+}
+
+fn replay_with(
+    off: &Offline,
+    mag_decimal_year: f64,
+    tweak: impl Fn(&mut InsInit),
+) -> BTreeMap<u64, Pose> {
+    let first = off
+        .events
+        .iter()
+        .position(|e| matches!(e, SensorEvent::Gnss(_)))
+        .unwrap();
+    let SensorEvent::Gnss(fix) = &off.events[first] else {
+        unreachable!()
+    };
+    let q_nb = off.truth[&fix.t_us].q_nb;
+    let mut init = InsInit::new(q_nb, fix.pos, fix.v_ned_mps, mag_decimal_year);
+    tweak(&mut init);
+    let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
+    let mut out = BTreeMap::new();
+    // Samples of the fix's instant that precede it are aiding samples of that instant.
+    let start = off.events[..first]
+        .iter()
+        .rposition(|e| e.t_us() < fix.t_us)
+        .map_or(0, |i| i + 1);
+    for e in &off.events[start..] {
+        if let Some(s) = ins.push(e) {
+            out.insert(
+                s.t_us,
+                Pose {
+                    pos: s.pos,
+                    q_nb: s.q_nb,
+                },
+            );
+        }
+    }
+    out
+}
+
+/// One daemon + SITL run.
+struct Run {
+    summary: SitlSummary,
+    counters: Counters,
+    /// (t_rx_us, t_valid_us, hor_err_m, truth lat/lon deg) per estimate, from `sitl.csv`.
+    rows: Vec<Row>,
+    /// Everything the daemon sent, in order.
+    daemon_msgs: Vec<apm::MavMessage>,
+    /// Bytes of the daemon's stream that were not part of a CRC-valid frame, payloads that
+    /// did not parse, and sequence-number gaps.
+    stream_defects: (usize, usize, usize),
+    wall_s: f64,
+}
+
+#[derive(Debug, Clone, Copy)]
+struct Row {
+    t_rx_us: u64,
+    t_valid_us: u64,
+    stamped: bool,
+    hor_err_m: f64,
+    truth_lat_deg: f64,
+    truth_lon_deg: f64,
+}
+
+fn read_rows(path: &std::path::Path) -> Vec<Row> {
+    let csv = std::fs::read_to_string(path).unwrap();
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (c_rx, c_valid, c_basis, c_err, c_lat, c_lon) = (
+        col("t_rx_s"),
+        col("t_valid_us"),
+        col("time_basis"),
+        col("hor_err_m"),
+        col("truth_lat_deg"),
+        col("truth_lon_deg"),
+    );
+    let warmup_s = setup().scenario.warmup_s;
+    lines
+        .map(|l| {
+            let f: Vec<&str> = l.split(',').collect();
+            let t_rx_s: f64 = f[c_rx].parse().unwrap();
+            Row {
+                t_rx_us: ((t_rx_s + warmup_s) * 1e6).round() as u64,
+                t_valid_us: f[c_valid].parse().unwrap(),
+                stamped: f[c_basis] == "stamp",
+                hor_err_m: f[c_err].parse().unwrap(),
+                truth_lat_deg: f[c_lat].parse().unwrap(),
+                truth_lon_deg: f[c_lon].parse().unwrap(),
+            }
+        })
+        .collect()
+}
+
+/// Parse the daemon's byte stream completely: every byte must belong to a CRC-valid frame.
+fn parse_stream(bytes: &[u8]) -> (Vec<apm::MavMessage>, (usize, usize, usize)) {
+    let mut reader = mavlink::MavlinkReader::new(bytes);
+    let (mut msgs, mut framed, mut bad_payload, mut seq_gaps) = (Vec::new(), 0, 0, 0);
+    let mut last_seq: Option<u8> = None;
+    while let Ok(raw) = reader.read_any_raw_message::<apm::MavMessage>() {
+        framed += match &raw {
+            MAVLinkMessageRaw::V1(r) => r.raw_bytes().len(),
+            MAVLinkMessageRaw::V2(r) => r.raw_bytes().len(),
+        };
+        if let Some(s) = last_seq
+            && raw.sequence() != s.wrapping_add(1)
+        {
+            seq_gaps += 1;
+        }
+        last_seq = Some(raw.sequence());
+        match apm::MavMessage::parse(raw.version(), raw.message_id(), raw.payload()) {
+            Ok(m) => msgs.push(m),
+            Err(_) => bad_payload += 1,
+        }
+    }
+    (msgs, (bytes.len() - framed, bad_payload, seq_gaps))
+}
+
+async fn accept(l: &TcpListener, who: &str) -> TcpStream {
+    let (s, _) = tokio::time::timeout(Duration::from_secs(15), l.accept())
+        .await
+        .unwrap_or_else(|_| panic!("{who} did not connect within 15 s"))
+        .unwrap();
+    s.set_nodelay(true).unwrap();
+    s
+}
+
+/// Fly `setup` with `seed`: the daemon (configured by `daemon_toml` plus the connection)
+/// against the SITL vehicle imitating `autopilot`, at [`SPEED`]× real time.
+async fn fly(setup: &FlightSetup, seed: u64, autopilot: Autopilot, daemon_toml: &str) -> Run {
+    let daemon_side = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let vehicle_side = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let cfg = DaemonConfig::from_toml_str(
+        &format!(
+            "[mavlink]\nconnection = \"tcpout:{}\"\nclock = \"autopilot\"\n{daemon_toml}",
+            daemon_side.local_addr().unwrap()
+        ),
+        None,
+    )
+    .unwrap();
+    let (htx, hrx) = tokio::sync::oneshot::channel();
+    let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
+    let handle = hrx.await.unwrap();
+    let to_daemon = accept(&daemon_side, "the daemon").await;
+
+    static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("ianav_e2e_{}_{n}", std::process::id()));
+    let options = SitlOptions {
+        connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
+        vehicle: VehicleConfig {
+            autopilot,
+            fly_on_estimates: false,
+            ..VehicleConfig::default()
+        },
+        speed: SPEED,
+        frames: None,
+        out_dir: Some(dir.clone()),
+    };
+    let sitl_setup = setup.clone();
+    let started = std::time::Instant::now();
+    let mut sitl_task = tokio::spawn(async move {
+        sitl::run(&sitl_setup, seed, options, |_, notices| {
+            for n in notices {
+                eprintln!("sitl: {n}");
+            }
+        })
+        .await
+    });
+    let to_vehicle = tokio::select! {
+        s = accept(&vehicle_side, "the SITL vehicle") => s,
+        r = &mut sitl_task => panic!("SITL ended before connecting: {r:?}"),
+    };
+
+    // The relay: vehicle → daemon unchanged; daemon → vehicle unchanged and recorded.
+    let (mut vr, mut vw) = to_vehicle.into_split();
+    let (mut dr, mut dw) = to_daemon.into_split();
+    let up = tokio::spawn(async move {
+        let _ = tokio::io::copy(&mut vr, &mut dw).await;
+    });
+    let down = tokio::spawn(async move {
+        let (mut log, mut buf) = (Vec::with_capacity(8 << 20), vec![0_u8; 65_536]);
+        loop {
+            let n = match dr.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => n,
+            };
+            log.extend_from_slice(&buf[..n]);
+            if vw.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+        log
+    });
+
+    let budget =
+        Duration::from_secs_f64((setup.scenario.warmup_s + MISSION_S) / SPEED * 2.0 + 30.0);
+    let summary = tokio::time::timeout(budget, sitl_task)
+        .await
+        .unwrap_or_else(|_| panic!("the SITL run did not end within {budget:?}"))
+        .unwrap()
+        .unwrap();
+    let wall_s = started.elapsed().as_secs_f64();
+    // The daemon may still be reading the vehicle's last frames: wait (bounded) until it
+    // has received as many as the vehicle sent, then let its navigation thread catch up.
+    let deadline = std::time::Instant::now() + Duration::from_secs(5);
+    while handle.shared.counters().rx_frames < summary.sent && std::time::Instant::now() < deadline
+    {
+        tokio::time::sleep(Duration::from_millis(10)).await;
+    }
+    tokio::time::sleep(Duration::from_millis(200)).await;
+    let counters = handle.shared.counters();
+    handle.stop();
+    tokio::time::timeout(Duration::from_secs(10), daemon_task)
+        .await
+        .expect("daemon stops within 10 s")
+        .unwrap()
+        .unwrap();
+    let bytes = tokio::time::timeout(Duration::from_secs(10), down)
+        .await
+        .expect("relay ends when the daemon closes")
+        .unwrap();
+    up.abort();
+    let (daemon_msgs, stream_defects) = parse_stream(&bytes);
+    let rows = read_rows(&dir.join("sitl.csv"));
+    let _ = std::fs::remove_dir_all(&dir);
+    Run {
+        summary,
+        counters,
+        rows,
+        daemon_msgs,
+        stream_defects,
+        wall_s,
+    }
+}
+
+fn daemon_toml(imu_rate_hz: f64, air_rate_hz: f64, output_hz: f64) -> String {
+    let year = setup().scenario.magnetic_decimal_year;
+    format!(
+        "link_timeout_s = 3.0\n\
+         [input]\nimu_rate_hz = {imu_rate_hz}\nair_rate_hz = {air_rate_hz}\n\
+         [output]\nmode = \"odometry\"\nrate_hz = {output_hz}\n\
+         [navigation]\nmag_decimal_year = {year}\n\
+         [logging]\ncounters_period_s = 0.0\n"
+    )
+}
+
+/// The daemon's ODOMETRY as poses at their time of validity (vehicle time).
+#[allow(deprecated)] // SET_GPS_GLOBAL_ORIGIN
+fn odometry_poses(msgs: &[apm::MavMessage]) -> BTreeMap<u64, Pose> {
+    let origin = msgs
+        .iter()
+        .find_map(|m| match m {
+            apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(o) => Some(MapProjection::new(&Geodetic {
+                lat_rad: sitl::convert::rad_from_deg_e7(o.latitude),
+                lon_rad: sitl::convert::rad_from_deg_e7(o.longitude),
+                h_m: f64::from(o.altitude) * 1e-3,
+            })),
+            _ => None,
+        })
+        .expect("SET_GPS_GLOBAL_ORIGIN sent");
+    msgs.iter()
+        .filter_map(|m| match m {
+            apm::MavMessage::ODOMETRY(o) => {
+                let pos = origin.reproject(&[f64::from(o.x), f64::from(o.y), f64::from(o.z)]);
+                let q = nalgebra::Quaternion::new(o.q[0], o.q[1], o.q[2], o.q[3]).cast::<f64>();
+                Some((
+                    o.time_usec,
+                    Pose {
+                        pos,
+                        q_nb: UnitQuaternion::from_quaternion(q),
+                    },
+                ))
+            }
+            _ => None,
+        })
+        .collect()
+}
+
+fn rms(v: impl Iterator<Item = f64>) -> f64 {
+    let (s, n) = v.fold((0.0, 0_u32), |(s, n), x| (s + x * x, n + 1));
+    (s / f64::from(n.max(1))).sqrt()
+}
+
+/// The comparison of one run with the offline flight at every ODOMETRY instant.
+struct Compared {
+    /// (time of validity µs, daemon, offline INS, cold-start replay, warm-gyro replay).
+    at: Vec<(u64, Err3, Err3, Err3, Err3)>,
+    loss_us: u64,
+    warmup_us: u64,
+}
+
+impl Compared {
+    fn mission_s(&self, t_us: u64) -> f64 {
+        (t_us as f64 - self.warmup_us as f64) * 1e-6
+    }
+    fn nearest(&self, mission_s: f64) -> &(u64, Err3, Err3, Err3, Err3) {
+        self.at
+            .iter()
+            .min_by(|x, y| {
+                (self.mission_s(x.0) - mission_s)
+                    .abs()
+                    .total_cmp(&(self.mission_s(y.0) - mission_s).abs())
+            })
+            .unwrap()
+    }
+    fn denied(&self) -> impl Iterator<Item = &(u64, Err3, Err3, Err3, Err3)> {
+        self.at.iter().filter(|x| x.0 > self.loss_us)
+    }
+    fn print(&self) {
+        eprintln!(
+            "mission s | daemon hor m, alt m, att deg | offline INS | replay, daemon-like cold start | replay, cold start but gyro error known"
+        );
+        for m in [100.0, 150.0, 200.0, 250.0, 300.0] {
+            let (t, d, a, b, g) = self.nearest(m);
+            eprintln!(
+                "{:7.2} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3}",
+                self.mission_s(*t),
+                d.hor_m,
+                d.alt_m,
+                d.att_deg,
+                a.hor_m,
+                a.alt_m,
+                a.att_deg,
+                b.hor_m,
+                b.alt_m,
+                b.att_deg,
+                g.hor_m,
+                g.alt_m,
+                g.att_deg
+            );
+        }
+        let r = |f: fn(&(u64, Err3, Err3, Err3, Err3)) -> f64| rms(self.denied().map(f));
+        eprintln!(
+            "RMS after GNSS loss: hor {:.2} / {:.2} / {:.2} / {:.2} m; att {:.3} / {:.3} / {:.3} / {:.3} deg; alt {:.2} / {:.2} / {:.2} / {:.2} m",
+            r(|x| x.1.hor_m),
+            r(|x| x.2.hor_m),
+            r(|x| x.3.hor_m),
+            r(|x| x.4.hor_m),
+            r(|x| x.1.att_deg),
+            r(|x| x.2.att_deg),
+            r(|x| x.3.att_deg),
+            r(|x| x.4.att_deg),
+            r(|x| x.1.alt_m),
+            r(|x| x.2.alt_m),
+            r(|x| x.3.alt_m),
+            r(|x| x.4.alt_m),
+        );
+    }
+}
+
+fn compare(off: &Offline, odo: &BTreeMap<u64, Pose>, year: f64) -> Compared {
+    let cold = replay_daemon_init(off, year);
+    let e = off.errs.unwrap();
+    let warm_gyro = replay_with(off, year, |i| {
+        i.e_gyr_rps = e.e_gyr_rps;
+        i.e_gyr_sigma_rps = e.e_gyr_rps.map(|x| 0.01 * x.abs());
+    });
+    let at = odo
+        .iter()
+        .map(|(t, p)| {
+            let truth = &off.truth[t];
+            (
+                *t,
+                errors(truth, p),
+                errors(truth, &off.ins[t]),
+                errors(truth, &cold[t]),
+                errors(truth, &warm_gyro[t]),
+            )
+        })
+        .collect();
+    Compared {
+        at,
+        loss_us: off.loss_us,
+        warmup_us: off.warmup_us,
+    }
+}
+
+/// Largest airspeed of scenario #2's draws, m/s.
+const V_MAX_MPS: f64 = 34.0;
+/// Heading difference the two initialisations may leave at GNSS loss, rad: the offline
+/// INS starts 0.1° (1σ of its draw) off the truth, the daemon from the autopilot's
+/// ATTITUDE (the truth before the vehicle's own INS runs); with GNSS both converge, so the
+/// difference is at most that draw.
+const D_PSI_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
+/// Position difference allowed at the loss (both filters fuse the same fixes; degE7, mm,
+/// cm/s and cdeg quantisation and f32 local coordinates are centimetres), m.
+const D_POS_AT_LOSS_M: f64 = 2.0;
+
+/// Allowed |daemon − offline| horizontal error `dt_s` after GNSS loss. In GNSS-denied mode
+/// the position integrates `v_wind(frozen) + C_nb v_air`: a heading difference Δψ moves
+/// the air-relative term by V·Δψ and the frozen wind, estimated through the same attitude,
+/// by up to V·Δψ more (they cancel on a straight leg, add after a 180° turn).
+fn denied_tolerance_m(dt_s: f64) -> f64 {
+    D_POS_AT_LOSS_M + 2.0 * V_MAX_MPS * D_PSI_RAD * dt_s
+}
+
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[allow(deprecated)] // SET_GPS_GLOBAL_ORIGIN, as the daemon sends it
+async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
+    let seed = 1;
+    let setup = setup();
+    let year = setup.scenario.magnetic_decimal_year;
+    let off = tokio::task::spawn_blocking({
+        let setup = setup.clone();
+        move || offline(&setup, seed)
+    });
+    let run = fly(
+        &setup,
+        seed,
+        Autopilot::Px4,
+        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
+    )
+    .await;
+    let off = off.await.unwrap();
+    let c = &run.counters;
+    eprintln!(
+        "wall {:.1} s (SITL max lag {:.3} s of vehicle time); SITL sent {}, daemon received {}, sent {}, published {}",
+        run.wall_s,
+        run.summary.max_lag_s,
+        run.summary.sent,
+        c.rx_frames,
+        c.tx_messages,
+        c.published
+    );
+
+    // Transport: every byte the daemon sent is a CRC-valid frame that parses, no sequence
+    // gap; the vehicle accepted every estimate; the daemon received every vehicle frame.
+    assert_eq!(
+        run.stream_defects,
+        (0, 0, 0),
+        "skipped bytes, bad payloads, sequence gaps"
+    );
+    let odo_msgs: Vec<&apm::ODOMETRY_DATA> = run
+        .daemon_msgs
+        .iter()
+        .filter_map(|m| match m {
+            apm::MavMessage::ODOMETRY(o) => Some(o),
+            _ => None,
+        })
+        .collect();
+    let s = &run.summary;
+    assert_eq!((s.send_dropped, s.send_errors), (0, 0), "{s:?}");
+    assert_eq!(s.vehicle.estimates_refused, 0, "{s:?}");
+    // The vehicle stops reading when its mission ends: the last few estimates, sent while
+    // it shut down (a few ms of wall time at 300 per second), reach only the relay.
+    let sent = odo_msgs.len() as u64;
+    assert!(
+        s.vehicle.estimates <= sent && sent - s.vehicle.estimates <= 10,
+        "{} estimates taken by the vehicle of {sent} sent",
+        s.vehicle.estimates
+    );
+    assert!(
+        c.published >= sent && c.published - sent <= 10,
+        "{} published",
+        c.published
+    );
+    assert_eq!(
+        c.rx_frames, s.sent,
+        "frames lost between vehicle and daemon"
+    );
+    assert_eq!(c.rx_parse_errors, 0);
+
+    // IMU: every HIGHRES_IMU decoded, none refused by the INS, no gap.
+    let imu_sent = off
+        .events
+        .iter()
+        .filter(|e| matches!(e, SensorEvent::Imu(_)))
+        .count() as u64;
+    let i = &c.input;
+    assert_eq!(i.imu, imu_sent, "{i:?}");
+    assert_eq!((i.non_finite, i.out_of_range, i.time), (0, 0, 0), "{i:?}");
+    let ins = c.ins.as_ref().unwrap();
+    assert_eq!(
+        (
+            ins.imu.rejected_time,
+            ins.imu.rejected_invalid,
+            ins.imu_gaps
+        ),
+        (0, 0, 0),
+        "{ins:?}"
+    );
+    // The per-kind time gate refuses only repeats: each 10 ms instant gives two air events
+    // (AIRSPEED + HIGHRES_IMU pressure), each 1 Hz fix is sent at the requested 5 Hz.
+    let fixes = off
+        .events
+        .iter()
+        .filter(|e| matches!(e, SensorEvent::Gnss(_)))
+        .count() as u64;
+    assert_eq!(
+        c.time_order_rejected,
+        (i.air - imu_sent) + (i.gnss - fixes),
+        "refused samples other than repeated air data and fixes: {c:?}"
+    );
+
+    // Nothing before the INS is initialised: the first estimate is valid at or after the
+    // first fix, and arrives after it; the daemon announced the initialisation and the
+    // origin before its first ODOMETRY.
+    let first_fix = off
+        .events
+        .iter()
+        .find_map(|e| match e {
+            SensorEvent::Gnss(f) => Some(*f),
+            _ => None,
+        })
+        .unwrap();
+    assert!(
+        c.nav.events_before_init > 0,
+        "sensor data flowed before the first fix"
+    );
+    assert!(
+        (first_fix.t_us..first_fix.t_us + 1_000_000).contains(&odo_msgs[0].time_usec),
+        "first ODOMETRY valid at {} µs, first fix at {} µs",
+        odo_msgs[0].time_usec,
+        first_fix.t_us
+    );
+    assert!(run.rows[0].t_rx_us >= first_fix.t_us);
+    let pos = |f: &dyn Fn(&apm::MavMessage) -> bool| run.daemon_msgs.iter().position(f).unwrap();
+    let first_odo = pos(&|m| matches!(m, apm::MavMessage::ODOMETRY(_)));
+    let origin = pos(&|m| matches!(m, apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(_)));
+    assert!(
+        origin < first_odo,
+        "origin announced before the first ODOMETRY"
+    );
+    #[allow(deprecated)]
+    let apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(o) = &run.daemon_msgs[origin] else {
+        unreachable!()
+    };
+    assert_eq!(
+        (o.latitude, o.longitude),
+        (
+            sitl::convert::deg_e7(first_fix.pos.lat_rad),
+            sitl::convert::deg_e7(first_fix.pos.lon_rad)
+        ),
+        "the INS started at the first fix"
+    );
+    pos(&|m| {
+        matches!(m, apm::MavMessage::STATUSTEXT(t)
+            if String::from_utf8_lossy(&t.text.to_vec()).contains("INS initialised"))
+    });
+
+    // Rate: the configured rate is per second of the daemon's time base, the autopilot's
+    // clock here (vehicle time, 10× wall time). Counted in 10 s windows of time of validity
+    // (the daemon's stamps) and of arrival at the vehicle.
+    let windows = |times: &[u64], what: &str| {
+        let (t0, t1) = (times[0] + 1_000_000, *times.last().unwrap());
+        let mut n = 0;
+        let mut a = t0;
+        while a + 10_000_000 <= t1 {
+            let k = times
+                .iter()
+                .filter(|t| (a..a + 10_000_000).contains(*t))
+                .count();
+            let rate = k as f64 / 10.0;
+            assert!(
+                (rate / ODOMETRY_HZ - 1.0).abs() <= 0.1,
+                "{what}: {rate} Hz in [{a}, +10 s) µs"
+            );
+            a += 10_000_000;
+            n += 1;
+        }
+        assert!(n >= 30, "{n} windows");
+    };
+    let stamps: Vec<u64> = odo_msgs.iter().map(|o| o.time_usec).collect();
+    windows(&stamps, "ODOMETRY time_usec");
+    let arrivals: Vec<u64> = run.rows.iter().map(|r| r.t_rx_us).collect();
+    windows(&arrivals, "arrival at the vehicle");
+    let mean = s.estimate_rate_hz.unwrap();
+    assert!((mean / ODOMETRY_HZ - 1.0).abs() <= 0.1, "{mean}");
+    assert!(stamps.windows(2).all(|w| w[1] > w[0]));
+
+    // Same trajectory as offline, and the vehicle's log agrees with the decoded stream.
+    let odo = odometry_poses(&run.daemon_msgs);
+    for r in &run.rows {
+        assert!(r.stamped, "time of validity from the daemon's stamp");
+        let truth = off.truth[&r.t_valid_us];
+        let logged = Geodetic {
+            lat_rad: r.truth_lat_deg.to_radians(),
+            lon_rad: r.truth_lon_deg.to_radians(),
+            h_m: truth.pos.h_m,
+        };
+        let d = wgs84::ned_difference_m(&truth.pos, &logged);
+        assert!(
+            d.x.hypot(d.y) < 0.001,
+            "vehicle truth ≠ offline truth at {}",
+            r.t_valid_us
+        );
+        let e = errors(&truth, &odo[&r.t_valid_us]).hor_m;
+        assert!(
+            (e - r.hor_err_m).abs() < 0.01,
+            "{e} vs logged {}",
+            r.hor_err_m
+        );
+    }
+
+    // Horizontal error after GNSS loss versus the offline INS (acceptance criterion 3):
+    // reported here, asserted by `denied_horizontal_error_equals_the_offline_ins`.
+    let cmp = compare(&off, &odo, year);
+    cmp.print();
+    eprintln!("estimator resets: {}", c.nav.initialisations - 1);
+}
+
+/// Acceptance criterion 3 of issue 5. Fails today: the daemon starts its INS with cold-start
+/// sensor errors, and with the simulated gyro biases (0.1–0.3 °/s) the attitude diverges
+/// while GNSS is still available (docs/E2E.md). Run with `--ignored`.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "fails: cold-start INS diverges before the GNSS loss (docs/E2E.md)"]
+async fn denied_horizontal_error_equals_the_offline_ins() {
+    let seed = 1;
+    let setup = setup();
+    let off = tokio::task::spawn_blocking({
+        let setup = setup.clone();
+        move || offline(&setup, seed)
+    });
+    let run = fly(
+        &setup,
+        seed,
+        Autopilot::Px4,
+        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
+    )
+    .await;
+    let off = off.await.unwrap();
+    let cmp = compare(
+        &off,
+        &odometry_poses(&run.daemon_msgs),
+        setup.scenario.magnetic_decimal_year,
+    );
+    cmp.print();
+    let loss_s = cmp.mission_s(cmp.loss_us);
+    for m in [150.0, 200.0, 250.0, 300.0] {
+        let (t, d, a, _, _) = cmp.nearest(m);
+        let tol = denied_tolerance_m(cmp.mission_s(*t) - loss_s);
+        assert!(
+            (d.hor_m - a.hor_m).abs() <= tol,
+            "at {m} s: daemon {:.1} m, offline {:.1} m, tolerance {tol:.1} m",
+            d.hor_m,
+            a.hor_m
+        );
+    }
+    let rms_diff = rms(cmp.denied().map(|x| x.1.hor_m - x.2.hor_m));
+    let tol = denied_tolerance_m((cmp.mission_s(cmp.at.last().unwrap().0) - loss_s) / 2.0);
+    assert!(
+        rms_diff <= tol,
+        "RMS difference {rms_diff:.1} m > {tol:.1} m"
+    );
+}
+
+/// Issue 5 item 1: the daemon's errors with a 25 Hz IMU (ArduPilot mode: RAW_IMU and air
+/// data at 25 Hz, box-averaged) versus 100 Hz (PX4 mode), same seeds. Run with
+/// `--ignored --nocapture` (about 38 s per run, 2 runs per seed). While the daemon's cold
+/// start diverges (docs/E2E.md) the errors measure that divergence, so no ratio between the
+/// rates is asserted: only that every sample is decoded and none refused at either rate.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+#[ignore = "measurement, ~4 min"]
+async fn imu_at_25_hz_versus_100_hz() {
+    let setup = setup();
+    let mut table = Vec::new();
+    for seed in 1..=3 {
+        for (name, autopilot, imu_hz) in [
+            ("PX4 100 Hz", Autopilot::Px4, 100.0),
+            ("ArduPilot 25 Hz", Autopilot::ArduPilot, 25.0),
+        ] {
+            let run = fly(&setup, seed, autopilot, &daemon_toml(imu_hz, imu_hz, 25.0)).await;
+            let c = &run.counters;
+            assert_eq!(run.stream_defects, (0, 0, 0));
+            let ins = c.ins.as_ref().unwrap();
+            assert_eq!((ins.imu.rejected_time, ins.imu_gaps), (0, 0), "{ins:?}");
+            let expected_imu = ((setup.scenario.warmup_s + MISSION_S) * imu_hz).round() as u64;
+            assert!(
+                c.input.imu.abs_diff(expected_imu) <= 2,
+                "{} IMU samples, expected {expected_imu}",
+                c.input.imu
+            );
+            let odo = odometry_poses(&run.daemon_msgs);
+            let off = offline(&setup, seed);
+            let loss = off.loss_us;
+            let denied: Vec<Err3> = odo
+                .iter()
+                .filter(|(t, _)| **t > loss)
+                .map(|(t, p)| errors(&off.truth[t], p))
+                .collect();
+            let last = *denied.last().unwrap();
+            let row = (
+                seed,
+                name,
+                last,
+                rms(denied.iter().map(|e| e.hor_m)),
+                rms(denied.iter().map(|e| e.att_deg)),
+                rms(denied.iter().map(|e| e.alt_m)),
+                c.nav.initialisations - 1,
+            );
+            eprintln!("{row:?}");
+            table.push(row);
+        }
+    }
+    eprintln!(
+        "seed | IMU | at 300 s: hor m, att deg, alt m | RMS after loss: hor m, att deg, alt m | resets"
+    );
+    for (seed, name, l, h, a, v, resets) in &table {
+        eprintln!(
+            "{seed} | {name} | {:.1}, {:.3}, {:.2} | {h:.1}, {a:.3}, {v:.2} | {resets}",
+            l.hor_m, l.att_deg, l.alt_m
+        );
+    }
+}
