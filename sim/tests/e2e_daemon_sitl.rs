@@ -525,24 +525,30 @@ fn denied_tolerance_m(dt_s: f64) -> f64 {
     D_POS_AT_LOSS_M + 2.0 * V_MAX_MPS * D_PSI_RAD * dt_s
 }
 
+/// The PX4-mode run of the daemon (IMU and air data at 100 Hz, ODOMETRY) and, in parallel,
+/// the offline flight of the same seed.
+async fn px4_run_beside_offline(setup: &FlightSetup, seed: u64) -> (Offline, Run) {
+    let off = tokio::task::spawn_blocking({
+        let setup = setup.clone();
+        move || offline(&setup, seed)
+    });
+    let run = fly(
+        setup,
+        seed,
+        Autopilot::Px4,
+        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
+    )
+    .await;
+    (off.await.unwrap(), run)
+}
+
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[allow(deprecated)] // SET_GPS_GLOBAL_ORIGIN, as the daemon sends it
 async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
     let seed = 1;
     let setup = setup();
     let year = setup.scenario.magnetic_decimal_year;
-    let off = tokio::task::spawn_blocking({
-        let setup = setup.clone();
-        move || offline(&setup, seed)
-    });
-    let run = fly(
-        &setup,
-        seed,
-        Autopilot::Px4,
-        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
-    )
-    .await;
-    let off = off.await.unwrap();
+    let (off, run) = px4_run_beside_offline(&setup, seed).await;
     let c = &run.counters;
     eprintln!(
         "wall {:.1} s (SITL max lag {:.3} s of vehicle time); SITL sent {}, daemon received {}, sent {}, published {}",
@@ -738,18 +744,7 @@ async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
 async fn denied_horizontal_error_equals_the_offline_ins() {
     let seed = 1;
     let setup = setup();
-    let off = tokio::task::spawn_blocking({
-        let setup = setup.clone();
-        move || offline(&setup, seed)
-    });
-    let run = fly(
-        &setup,
-        seed,
-        Autopilot::Px4,
-        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
-    )
-    .await;
-    let off = off.await.unwrap();
+    let (off, run) = px4_run_beside_offline(&setup, seed).await;
     let cmp = compare(
         &off,
         &odometry_poses(&run.daemon_msgs),
