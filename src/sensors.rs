@@ -4,7 +4,7 @@
 //! All values are SI, in the frame named by the field. Inertial samples are expressed in the
 //! IMU platform axes as the navigation believes them aligned with the body (`B`) axes.
 
-use nalgebra::Vector3;
+use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 use crate::math::wgs84::Geodetic;
@@ -63,6 +63,17 @@ pub struct GnssFix {
     pub sigma_vel_mps: f64,
 }
 
+/// Attitude estimated by another navigation system on board (the autopilot's GNSS-aided
+/// estimator, MAVLink ATTITUDE): the reference of the INS's transfer alignment while GNSS is
+/// available.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct RefAttitude {
+    /// Time of validity, microseconds.
+    pub t_us: u64,
+    /// Attitude body → NED.
+    pub q_nb: UnitQuaternion<f64>,
+}
+
 /// A grey-level camera frame (8 bits per pixel, row-major).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
@@ -87,6 +98,8 @@ pub enum SensorEvent {
     Mag(MagSample),
     /// GNSS receiver.
     Gnss(GnssFix),
+    /// Another estimator's attitude (transfer alignment).
+    RefAttitude(RefAttitude),
     /// Down-looking camera.
     Frame(Frame),
 }
@@ -99,6 +112,7 @@ impl SensorEvent {
             SensorEvent::Air(s) => s.t_us,
             SensorEvent::Mag(s) => s.t_us,
             SensorEvent::Gnss(s) => s.t_us,
+            SensorEvent::RefAttitude(s) => s.t_us,
             SensorEvent::Frame(s) => s.t_us,
         }
     }

@@ -21,7 +21,7 @@ use ianav::ins::{Ins, InsConfig, InsInit};
 use ianav::math::map_projection::MapProjection;
 use ianav::math::so3;
 use ianav::math::wgs84::{self, Geodetic};
-use ianav::sensors::SensorEvent;
+use ianav::sensors::{RefAttitude, SensorEvent};
 use ianav_sim::flight::{Flight, FlightObserver, FlightSetup, TruthSample};
 use ianav_sim::sitl::{self, Autopilot, SitlOptions, SitlSummary, VehicleConfig};
 use mavlink::dialects::ardupilotmega as apm;
@@ -80,7 +80,6 @@ struct Offline {
     events: Vec<SensorEvent>,
     loss_us: u64,
     warmup_us: u64,
-    errs: Option<ianav_sim::sensors::SensorErrors>,
 }
 
 impl FlightObserver for Offline {
@@ -97,6 +96,13 @@ impl FlightObserver for Offline {
         );
     }
     fn nav_solution(&mut self, t: &TruthSample, s: &ianav::ins::InsSolution) {
+        // What the PX4 vehicle reports as ATTITUDE (its own INS, 50 Hz), for the replay.
+        if t.t_us.is_multiple_of(20_000) {
+            self.events.push(SensorEvent::RefAttitude(RefAttitude {
+                t_us: t.t_us,
+                q_nb: s.q_nb,
+            }));
+        }
         self.ins.insert(
             t.t_us,
             Pose {
@@ -116,26 +122,15 @@ fn offline(setup: &FlightSetup, seed: u64) -> Offline {
     };
     while !flight.finished() {
         flight.step(&mut obs).unwrap();
-        if obs.errs.is_none() && obs.events.iter().any(|e| matches!(e, SensorEvent::Gnss(_))) {
-            obs.errs = Some(flight.sensors().true_errors());
-        }
     }
     obs
 }
 
 /// The offline sensor samples into an INS started as the daemon starts it: at the first
 /// GNSS fix, from its position and velocity, the attitude the autopilot reports there (the
-/// truth: before its own INS starts the vehicle reports the truth), cold-start sensor
-/// errors. No transport: what the daemon's initialisation alone changes.
+/// truth: its own INS starts at that fix), cold-start sensor errors, and the autopilot's attitude (the offline INS, 50 Hz) for the
+/// transfer alignment. No transport: what the daemon's initialisation alone changes.
 fn replay_daemon_init(off: &Offline, mag_decimal_year: f64) -> BTreeMap<u64, Pose> {
-    replay_with(off, mag_decimal_year, |_| {})
-}
-
-fn replay_with(
-    off: &Offline,
-    mag_decimal_year: f64,
-    tweak: impl Fn(&mut InsInit),
-) -> BTreeMap<u64, Pose> {
     let first = off
         .events
         .iter()
@@ -145,8 +140,7 @@ fn replay_with(
         unreachable!()
     };
     let q_nb = off.truth[&fix.t_us].q_nb;
-    let mut init = InsInit::new(q_nb, fix.pos, fix.v_ned_mps, mag_decimal_year);
-    tweak(&mut init);
+    let init = InsInit::new(q_nb, fix.pos, fix.v_ned_mps, mag_decimal_year);
     let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
     let mut out = BTreeMap::new();
     // Samples of the fix's instant that precede it are aiding samples of that instant.
@@ -414,8 +408,8 @@ fn rms(v: impl Iterator<Item = f64>) -> f64 {
 
 /// The comparison of one run with the offline flight at every ODOMETRY instant.
 struct Compared {
-    /// (time of validity µs, daemon, offline INS, cold-start replay, warm-gyro replay).
-    at: Vec<(u64, Err3, Err3, Err3, Err3)>,
+    /// (time of validity µs, daemon, offline INS, replay of the daemon's start).
+    at: Vec<(u64, Err3, Err3, Err3)>,
     loss_us: u64,
     warmup_us: u64,
 }
@@ -424,7 +418,7 @@ impl Compared {
     fn mission_s(&self, t_us: u64) -> f64 {
         (t_us as f64 - self.warmup_us as f64) * 1e-6
     }
-    fn nearest(&self, mission_s: f64) -> &(u64, Err3, Err3, Err3, Err3) {
+    fn nearest(&self, mission_s: f64) -> &(u64, Err3, Err3, Err3) {
         self.at
             .iter()
             .min_by(|x, y| {
@@ -434,17 +428,17 @@ impl Compared {
             })
             .unwrap()
     }
-    fn denied(&self) -> impl Iterator<Item = &(u64, Err3, Err3, Err3, Err3)> {
+    fn denied(&self) -> impl Iterator<Item = &(u64, Err3, Err3, Err3)> {
         self.at.iter().filter(|x| x.0 > self.loss_us)
     }
     fn print(&self) {
         eprintln!(
-            "mission s | daemon hor m, alt m, att deg | offline INS | replay, daemon-like cold start | replay, cold start but gyro error known"
+            "mission s | daemon hor m, alt m, att deg | offline INS | replay of the daemon's start (no transport)"
         );
         for m in [100.0, 150.0, 200.0, 250.0, 300.0] {
-            let (t, d, a, b, g) = self.nearest(m);
+            let (t, d, a, b) = self.nearest(m);
             eprintln!(
-                "{:7.2} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3}",
+                "{:7.2} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3} | {:7.2} {:6.2} {:6.3}",
                 self.mission_s(*t),
                 d.hor_m,
                 d.alt_m,
@@ -455,37 +449,62 @@ impl Compared {
                 b.hor_m,
                 b.alt_m,
                 b.att_deg,
-                g.hor_m,
-                g.alt_m,
-                g.att_deg
             );
         }
-        let r = |f: fn(&(u64, Err3, Err3, Err3, Err3)) -> f64| rms(self.denied().map(f));
+        let r = |f: fn(&(u64, Err3, Err3, Err3)) -> f64| rms(self.denied().map(f));
         eprintln!(
-            "RMS after GNSS loss: hor {:.2} / {:.2} / {:.2} / {:.2} m; att {:.3} / {:.3} / {:.3} / {:.3} deg; alt {:.2} / {:.2} / {:.2} / {:.2} m",
+            "RMS after GNSS loss: hor {:.2} / {:.2} / {:.2} m; att {:.3} / {:.3} / {:.3} deg; alt {:.2} / {:.2} / {:.2} m",
             r(|x| x.1.hor_m),
             r(|x| x.2.hor_m),
             r(|x| x.3.hor_m),
-            r(|x| x.4.hor_m),
             r(|x| x.1.att_deg),
             r(|x| x.2.att_deg),
             r(|x| x.3.att_deg),
-            r(|x| x.4.att_deg),
             r(|x| x.1.alt_m),
             r(|x| x.2.alt_m),
             r(|x| x.3.alt_m),
-            r(|x| x.4.alt_m),
         );
+    }
+
+    /// Acceptance criterion 3: the daemon's horizontal error after GNSS loss equals the
+    /// offline INS's within [`denied_tolerance_m`], at 150, 200, 250 and 300 s and in RMS.
+    fn assert_denied_error_equals_offline(&self) {
+        let loss_s = self.mission_s(self.loss_us);
+        for m in [150.0, 200.0, 250.0, 300.0] {
+            let (t, d, a, _) = self.nearest(m);
+            let tol = denied_tolerance_m(self.mission_s(*t) - loss_s);
+            assert!(
+                (d.hor_m - a.hor_m).abs() <= tol,
+                "at {m} s: daemon {:.1} m, offline {:.1} m, tolerance {tol:.1} m",
+                d.hor_m,
+                a.hor_m
+            );
+        }
+        let rms_diff = rms(self.denied().map(|x| x.1.hor_m - x.2.hor_m));
+        let tol = denied_tolerance_m((self.mission_s(self.at.last().unwrap().0) - loss_s) / 2.0);
+        assert!(
+            rms_diff <= tol,
+            "RMS difference {rms_diff:.1} m > {tol:.1} m"
+        );
+        // The transport alone: against the replay of the same start without MAVLink, the
+        // only differences are quantisation (float32 IMU, attitude and local position, degE7,
+        // ms stamps), worth far less than 0.01° of heading.
+        for x in self.denied() {
+            let tol = D_POS_AT_LOSS_M
+                + 2.0 * V_MAX_MPS * D_PSI_TRANSPORT_RAD * (self.mission_s(x.0) - loss_s);
+            assert!(
+                (x.1.hor_m - x.3.hor_m).abs() <= tol,
+                "at {:.2} s: daemon {:.2} m, replay {:.2} m, tolerance {tol:.2} m",
+                self.mission_s(x.0),
+                x.1.hor_m,
+                x.3.hor_m
+            );
+        }
     }
 }
 
 fn compare(off: &Offline, odo: &BTreeMap<u64, Pose>, year: f64) -> Compared {
-    let cold = replay_daemon_init(off, year);
-    let e = off.errs.unwrap();
-    let warm_gyro = replay_with(off, year, |i| {
-        i.e_gyr_rps = e.e_gyr_rps;
-        i.e_gyr_sigma_rps = e.e_gyr_rps.map(|x| 0.01 * x.abs());
-    });
+    let replay = replay_daemon_init(off, year);
     let at = odo
         .iter()
         .map(|(t, p)| {
@@ -494,8 +513,7 @@ fn compare(off: &Offline, odo: &BTreeMap<u64, Pose>, year: f64) -> Compared {
                 *t,
                 errors(truth, p),
                 errors(truth, &off.ins[t]),
-                errors(truth, &cold[t]),
-                errors(truth, &warm_gyro[t]),
+                errors(truth, &replay[t]),
             )
         })
         .collect();
@@ -508,11 +526,15 @@ fn compare(off: &Offline, odo: &BTreeMap<u64, Pose>, year: f64) -> Compared {
 
 /// Largest airspeed of scenario #2's draws, m/s.
 const V_MAX_MPS: f64 = 34.0;
-/// Heading difference the two initialisations may leave at GNSS loss, rad: the offline
-/// INS starts 0.1° (1σ of its draw) off the truth, the daemon from the autopilot's
-/// ATTITUDE (the truth before the vehicle's own INS runs); with GNSS both converge, so the
-/// difference is at most that draw.
+/// Heading difference between the daemon and the offline INS at GNSS loss, rad. The
+/// daemon's INS starts with unknown sensor errors and is aligned once a second on the
+/// vehicle's ATTITUDE, which is the offline INS's attitude (σ 0.5° assumed per reference):
+/// after the 150 s of GNSS its heading σ relative to that reference is ≈ 0.5°/√150 ≈ 0.04°
+/// plus the gyro-error walk, reported by the filter as 0.05–0.08°; 0.1° bounds it.
 const D_PSI_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
+/// Heading difference that MAVLink transport may cause, rad (see
+/// [`Compared::assert_denied_error_equals_offline`]).
+const D_PSI_TRANSPORT_RAD: f64 = 0.01 * std::f64::consts::PI / 180.0;
 /// Position difference allowed at the loss (both filters fuse the same fixes; degE7, mm,
 /// cm/s and cdeg quantisation and f32 local coordinates are centimetres), m.
 const D_POS_AT_LOSS_M: f64 = 2.0;
@@ -616,15 +638,17 @@ async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
         (0, 0, 0),
         "{ins:?}"
     );
-    // The per-kind time gate refuses only repeats: each 10 ms instant gives two air events
-    // (AIRSPEED + HIGHRES_IMU pressure), each 1 Hz fix is sent at the requested 5 Hz.
+    // The per-kind time gate refuses only repeats, no reordering: each 10 ms instant gives
+    // two air events (AIRSPEED + HIGHRES_IMU pressure), each 1 Hz fix is sent at the
+    // requested 5 Hz.
     let fixes = off
         .events
         .iter()
         .filter(|e| matches!(e, SensorEvent::Gnss(_)))
         .count() as u64;
+    assert_eq!(c.time_order_rejected, 0, "{c:?}");
     assert_eq!(
-        c.time_order_rejected,
+        c.time_repeated,
         (i.air - imu_sent) + (i.gnss - fixes),
         "refused samples other than repeated air data and fixes: {c:?}"
     );
@@ -729,52 +753,38 @@ async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
         );
     }
 
-    // Horizontal error after GNSS loss versus the offline INS (acceptance criterion 3):
-    // reported here, asserted by `denied_horizontal_error_equals_the_offline_ins`.
+    // Horizontal error after GNSS loss versus the offline INS (acceptance criterion 3).
     let cmp = compare(&off, &odo, year);
     cmp.print();
-    eprintln!("estimator resets: {}", c.nav.initialisations - 1);
+    assert_eq!(c.nav.initialisations, 1, "no estimator reset");
+    cmp.assert_denied_error_equals_offline();
 }
 
-/// Acceptance criterion 3 of issue 5. Fails today: the daemon starts its INS with cold-start
-/// sensor errors, and with the simulated gyro biases (0.1–0.3 °/s) the attitude diverges
-/// while GNSS is still available (docs/E2E.md). Run with `--ignored`.
+/// Acceptance criterion 3 on two more seeds (the CI test flies seed 1). Run with
+/// `--ignored --nocapture`, about 40 s per seed.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "fails: cold-start INS diverges before the GNSS loss (docs/E2E.md)"]
-async fn denied_horizontal_error_equals_the_offline_ins() {
-    let seed = 1;
+#[ignore = "measurement, ~80 s"]
+async fn denied_horizontal_error_equals_the_offline_ins_seeds_2_and_3() {
     let setup = setup();
-    let (off, run) = px4_run_beside_offline(&setup, seed).await;
-    let cmp = compare(
-        &off,
-        &odometry_poses(&run.daemon_msgs),
-        setup.scenario.magnetic_decimal_year,
-    );
-    cmp.print();
-    let loss_s = cmp.mission_s(cmp.loss_us);
-    for m in [150.0, 200.0, 250.0, 300.0] {
-        let (t, d, a, _, _) = cmp.nearest(m);
-        let tol = denied_tolerance_m(cmp.mission_s(*t) - loss_s);
-        assert!(
-            (d.hor_m - a.hor_m).abs() <= tol,
-            "at {m} s: daemon {:.1} m, offline {:.1} m, tolerance {tol:.1} m",
-            d.hor_m,
-            a.hor_m
+    for seed in [2, 3] {
+        let (off, run) = px4_run_beside_offline(&setup, seed).await;
+        let cmp = compare(
+            &off,
+            &odometry_poses(&run.daemon_msgs),
+            setup.scenario.magnetic_decimal_year,
         );
+        eprintln!("seed {seed}");
+        cmp.print();
+        assert_eq!(run.counters.nav.initialisations, 1, "no estimator reset");
+        cmp.assert_denied_error_equals_offline();
     }
-    let rms_diff = rms(cmp.denied().map(|x| x.1.hor_m - x.2.hor_m));
-    let tol = denied_tolerance_m((cmp.mission_s(cmp.at.last().unwrap().0) - loss_s) / 2.0);
-    assert!(
-        rms_diff <= tol,
-        "RMS difference {rms_diff:.1} m > {tol:.1} m"
-    );
 }
 
 /// Issue 5 item 1: the daemon's errors with a 25 Hz IMU (ArduPilot mode: RAW_IMU and air
 /// data at 25 Hz, box-averaged) versus 100 Hz (PX4 mode), same seeds. Run with
-/// `--ignored --nocapture` (about 38 s per run, 2 runs per seed). While the daemon's cold
-/// start diverges (docs/E2E.md) the errors measure that divergence, so no ratio between the
-/// rates is asserted: only that every sample is decoded and none refused at either rate.
+/// `--ignored --nocapture` (about 38 s per run, 2 runs per seed). A measurement (the figures
+/// are in docs/E2E.md); it asserts only what the rate must not break: every sample decoded,
+/// none refused, no gap, no estimator reset.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "measurement, ~4 min"]
 async fn imu_at_25_hz_versus_100_hz() {
@@ -790,6 +800,7 @@ async fn imu_at_25_hz_versus_100_hz() {
             assert_eq!(run.stream_defects, (0, 0, 0));
             let ins = c.ins.as_ref().unwrap();
             assert_eq!((ins.imu.rejected_time, ins.imu_gaps), (0, 0), "{ins:?}");
+            assert_eq!(c.nav.initialisations, 1, "no estimator reset");
             let expected_imu = ((setup.scenario.warmup_s + MISSION_S) * imu_hz).round() as u64;
             assert!(
                 c.input.imu.abs_diff(expected_imu) <= 2,

@@ -314,10 +314,14 @@ async fn handle_raw(
             SensorEvent::Mag(_) => Kind::Mag,
             SensorEvent::Gnss(_) => Kind::Gnss,
             SensorEvent::Frame(_) => Kind::Frame,
+            SensorEvent::RefAttitude(_) => Kind::RefAttitude,
         };
         if !st.gate.accept(kind, ev.t_us()) {
-            let n = st.gate.rejected;
-            shared.count(|c| c.time_order_rejected = n);
+            let (n, r) = (st.gate.rejected, st.gate.repeated);
+            shared.count(|c| {
+                c.time_order_rejected = n;
+                c.time_repeated = r;
+            });
             continue;
         }
         if let SensorEvent::Gnss(fix) = &ev {

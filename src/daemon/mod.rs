@@ -144,8 +144,10 @@ pub struct Counters {
     pub input: InputCounters,
     /// Time synchronisation counters.
     pub timesync: TimeSyncCounters,
-    /// Samples refused as duplicate or out of order.
+    /// Samples refused as older than the previous one of their kind (reordering).
     pub time_order_rejected: u64,
+    /// Samples refused as repeats of the previous one of their kind (same time).
+    pub time_repeated: u64,
     /// Sensor events handed to the navigation thread.
     pub events_to_nav: u64,
     /// Navigator counters.
@@ -609,6 +611,7 @@ pub fn log_counters(c: &Counters) {
         gnss = c.input.gnss,
         rejected = c.input.rejected(),
         time_order = c.time_order_rejected,
+        repeated = c.time_repeated,
         ts_samples = c.timesync.samples,
         reboots = c.autopilot_reboots,
         solutions = c.solutions,

@@ -220,6 +220,44 @@ impl AttitudeFilter {
         Ok(())
     }
 
+    /// Transfer-alignment update with another estimator's attitude `q_ref` valid `lag_s`
+    /// before the filter's time: `q_ref = q_nb(t − lag) ∘ Exp(ε)`, `ε ~ N(0, var·I)`, so the
+    /// innovation is `Log((q̂ ∘ Exp(−w·lag))⁻¹ ∘ q_ref)` and `H = [I, 0, 0, 0, 0]` (the
+    /// lag's effect on `H` is second order). Returns the normalised innovation squared.
+    pub fn update_reference(
+        &mut self,
+        q_ref: &UnitQuaternion<f64>,
+        lag_s: f64,
+        var_rad2: f64,
+        gate_chi2: f64,
+    ) -> Result<f64, UpdateRejection> {
+        let q_then = self.q_nb * so3::exp(&(-self.w_nb_b * lag_s));
+        let innovation = so3::log(&(q_then.inverse() * q_ref));
+        let mut h = SMatrix::<f64, 3, NX>::zeros();
+        h.fixed_view_mut::<3, 3>(0, TH)
+            .copy_from(&Matrix3::identity());
+        let c = ekf::update(
+            &mut self.p,
+            &h,
+            &Vector3::repeat(var_rad2),
+            &innovation,
+            Some(gate_chi2),
+        )?;
+        self.apply(&c.dx);
+        Ok(c.nis)
+    }
+
+    /// Restart the attitude at `q_ref` with variance `var_rad2` per axis, uncorrelated with
+    /// the other states (which keep their estimates).
+    pub fn reset_attitude(&mut self, q_ref: &UnitQuaternion<f64>, var_rad2: f64) {
+        self.q_nb = *q_ref;
+        self.p.fixed_rows_mut::<3>(TH).fill(0.0);
+        self.p.fixed_columns_mut::<3>(TH).fill(0.0);
+        for i in 0..3 {
+            self.p[(TH + i, TH + i)] = var_rad2;
+        }
+    }
+
     /// Fold an error-state correction into the nominal state and reset the covariance.
     fn apply(&mut self, dx: &SVector<f64, NX>) {
         let dth: Vector3<f64> = dx.fixed_rows::<3>(TH).into_owned();

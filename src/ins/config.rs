@@ -212,6 +212,46 @@ impl Default for PositionFilterConfig {
     }
 }
 
+/// Transfer alignment: while GNSS is available the attitude filter also fuses another
+/// estimator's attitude ([`crate::sensors::RefAttitude`], the autopilot's GNSS-aided ATTITUDE),
+/// which makes the gyro and magnetometer errors observable within seconds of a start in
+/// flight with unknown sensor errors (docs/INS.md §8). Never used after GNSS loss, when the
+/// reference's heading is only as good as its compass.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct AlignmentConfig {
+    /// Fuse reference attitudes at all.
+    pub enabled: bool,
+    /// σ of the reference attitude per axis, deg.
+    pub ref_attitude_sigma_deg: f64,
+    /// Shortest time between two fused references, s: the reference's errors are correlated
+    /// over seconds, so fusing every sample would make the filter trust it far more than its
+    /// σ says.
+    pub min_interval_s: f64,
+    /// References older than this at the IMU step that consumes them are not fused, s.
+    pub max_lag_s: f64,
+    /// Chi-square gate on the 3-D attitude innovation (an autopilot in a bad state is not
+    /// followed). 16.27 is the 1 − 1e-3 quantile with 3 degrees of freedom.
+    pub gate_chi2: f64,
+    /// This many consecutive gated references restart the attitude at the reference: the
+    /// INS, not the autopilot, is then the one that is off (e.g. after a re-initialisation
+    /// that kept an attitude which drifted while GNSS was lost).
+    pub max_consecutive_rejections: u32,
+}
+
+impl Default for AlignmentConfig {
+    fn default() -> Self {
+        Self {
+            enabled: true,
+            ref_attitude_sigma_deg: 0.5,
+            min_interval_s: 1.0,
+            max_lag_s: 0.1,
+            gate_chi2: 16.27,
+            max_consecutive_rejections: 5,
+        }
+    }
+}
+
 /// Bounds beyond which a sample is physically impossible (or outside any sensor's range) and
 /// is rejected before it reaches a filter.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
@@ -282,6 +322,9 @@ pub struct InsConfig {
     /// Position filter and GNSS-loss logic.
     #[serde(default)]
     pub position: PositionFilterConfig,
+    /// Transfer alignment on the autopilot's attitude.
+    #[serde(default)]
+    pub alignment: AlignmentConfig,
     /// Input validation bounds.
     #[serde(default)]
     pub limits: InputLimits,
@@ -306,6 +349,7 @@ impl Default for InsConfig {
             air: AirDataFilterConfig::default(),
             attitude: AttitudeFilterConfig::default(),
             position: PositionFilterConfig::default(),
+            alignment: AlignmentConfig::default(),
             limits: InputLimits::default(),
         }
     }
@@ -380,6 +424,18 @@ impl InsConfig {
         non_negative("position.lpf_time_constant_s", p.lpf_time_constant_s)?;
         non_negative("position.wind_bias_sigma_mps", p.wind_bias_sigma_mps)?;
         non_negative("position.gnss_bias_sigma_m", p.gnss_bias_sigma_m)?;
+        let g = &self.alignment;
+        positive("alignment.ref_attitude_sigma_deg", g.ref_attitude_sigma_deg)?;
+        non_negative("alignment.min_interval_s", g.min_interval_s)?;
+        non_negative("alignment.max_lag_s", g.max_lag_s)?;
+        positive("alignment.gate_chi2", g.gate_chi2)?;
+        if g.max_consecutive_rejections == 0 {
+            return Err(invalid(
+                "alignment.max_consecutive_rejections",
+                0.0,
+                "must be at least 1",
+            ));
+        }
         let l = &self.limits;
         positive("limits.max_specific_force_mps2", l.max_specific_force_mps2)?;
         positive("limits.max_angular_rate_rps", l.max_angular_rate_rps)?;

@@ -28,14 +28,14 @@ use nalgebra::{Matrix2, Matrix3, SMatrix, UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
 pub use config::{
-    AirDataFilterConfig, AttitudeFilterConfig, InputLimits, InsConfig, InsConfigError,
-    PositionFilterConfig,
+    AirDataFilterConfig, AlignmentConfig, AttitudeFilterConfig, InputLimits, InsConfig,
+    InsConfigError, PositionFilterConfig,
 };
 
 use crate::env::magnetic::{MagneticError, MagneticGrid, MagneticModel};
 use crate::math::so3;
 use crate::math::wgs84::{self, Geodetic};
-use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, SensorEvent};
+use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
 use air_data::AirDataFilter;
 use attitude::{AttitudeContext, AttitudeFilter, AttitudeInit};
 use position::{DeniedNav, GnssFilter, GnssPhaseEstimates, PositionInit};
@@ -287,6 +287,18 @@ pub struct InsStats {
     pub gnss_stale: u64,
     /// GNSS fixes received after the switch to GNSS-denied mode (not used).
     pub gnss_after_loss: u64,
+    /// Reference attitudes (transfer alignment).
+    pub ref_attitude: SensorCounters,
+    /// Reference attitudes fused.
+    pub ref_attitude_fused: u64,
+    /// Reference attitudes refused by the innovation gate.
+    pub ref_attitude_gated: u64,
+    /// Attitude restarts at the reference after `alignment.max_consecutive_rejections`
+    /// gated references in a row.
+    pub ref_attitude_resets: u64,
+    /// Reference attitudes not used: alignment disabled, GNSS-denied mode, within
+    /// `alignment.min_interval_s` of the last fused one, superseded or too old.
+    pub ref_attitude_unused: u64,
     /// Camera frames (ignored by the INS).
     pub frames_ignored: u64,
     /// Air or magnetometer samples superseded by a newer one before an IMU step.
@@ -333,6 +345,9 @@ struct Core {
     /// Time of the last valid GNSS fix (or of the initialisation), µs.
     last_fix_us: u64,
     consecutive_gated: u32,
+    /// Time of validity of the last fused reference attitude, µs.
+    last_ref_attitude_us: Option<u64>,
+    consecutive_ref_gated: u32,
 }
 
 /// The INS. Feed time-ordered [`SensorEvent`]s to [`Ins::push`]; every accepted IMU sample
@@ -347,9 +362,11 @@ pub struct Ins {
     last_air_us: Option<u64>,
     last_mag_us: Option<u64>,
     last_gnss_us: Option<u64>,
+    last_ref_attitude_us: Option<u64>,
     pending_air: Option<AirSample>,
     pending_mag: Option<MagSample>,
     pending_gnss: Option<GnssFix>,
+    pending_ref_attitude: Option<RefAttitude>,
     core: Option<Box<Core>>,
 }
 
@@ -371,9 +388,11 @@ impl Ins {
             last_air_us: None,
             last_mag_us: None,
             last_gnss_us: None,
+            last_ref_attitude_us: None,
             pending_air: None,
             pending_mag: None,
             pending_gnss: None,
+            pending_ref_attitude: None,
             core: None,
         })
     }
@@ -446,6 +465,21 @@ impl Ins {
                 }
                 None
             }
+            SensorEvent::RefAttitude(s) => {
+                if accept(
+                    &mut self.stats.ref_attitude,
+                    &mut self.last_ref_attitude_us,
+                    s.t_us,
+                    valid_ref_attitude(s),
+                ) {
+                    if !self.cfg.alignment.enabled || self.gnss_denied() {
+                        self.stats.ref_attitude_unused += 1;
+                    } else if self.pending_ref_attitude.replace(*s).is_some() {
+                        self.stats.ref_attitude_unused += 1;
+                    }
+                }
+                None
+            }
             SensorEvent::Frame(_) => {
                 self.stats.frames_ignored += 1;
                 None
@@ -488,6 +522,7 @@ impl Ins {
         let air = self.pending_air.take();
         let mag = self.pending_mag.take();
         let fix = self.pending_gnss.take();
+        let ref_att = self.pending_ref_attitude.take();
         let sol = run_step(
             &self.cfg,
             core,
@@ -495,9 +530,12 @@ impl Ins {
             &mut self.stats,
             &step,
             s,
-            air.as_ref(),
-            mag.as_ref(),
-            fix.as_ref(),
+            Aiding {
+                air: air.as_ref(),
+                mag: mag.as_ref(),
+                fix: fix.as_ref(),
+                ref_attitude: ref_att.as_ref(),
+            },
         );
         Some(sol)
     }
@@ -576,9 +614,14 @@ impl Ins {
             prev,
             last_fix_us,
             consecutive_gated: 0,
+            last_ref_attitude_us: None,
+            consecutive_ref_gated: 0,
         };
         let sol = solution(cfg, &core, 0.0, false, None, s);
         self.pending_mag = None;
+        if self.pending_ref_attitude.take().is_some() {
+            self.stats.ref_attitude_unused += 1;
+        }
         self.core = Some(Box::new(core));
         Some(sol)
     }
@@ -598,8 +641,16 @@ struct Step {
     gap: bool,
 }
 
+/// The aiding samples consumed by one IMU step.
+#[derive(Debug, Clone, Copy)]
+struct Aiding<'a> {
+    air: Option<&'a AirSample>,
+    mag: Option<&'a MagSample>,
+    fix: Option<&'a GnssFix>,
+    ref_attitude: Option<&'a RefAttitude>,
+}
+
 /// One cascade step (module doc).
-#[allow(clippy::too_many_arguments)]
 fn run_step(
     cfg: &InsConfig,
     core: &mut Core,
@@ -607,10 +658,14 @@ fn run_step(
     stats: &mut InsStats,
     step: &Step,
     imu: &ImuSample,
-    air: Option<&AirSample>,
-    mag: Option<&MagSample>,
-    fix: Option<&GnssFix>,
+    aiding: Aiding<'_>,
 ) -> InsSolution {
+    let Aiding {
+        air,
+        mag,
+        fix,
+        ref_attitude,
+    } = aiding;
     // GNSS loss: no valid fix for longer than the timeout, or too many gated in a row.
     if let PositionMode::Gnss { filter, est } = &core.position {
         let since_fix_s = step.t_us.saturating_sub(core.last_fix_us) as f64 / US_PER_S;
@@ -669,6 +724,9 @@ fn run_step(
         .is_err()
     {
         stats.numerical_rejections += 1;
+    }
+    if let Some(r) = ref_attitude {
+        fuse_ref_attitude(cfg, core, stats, step.t_us, r);
     }
     let q_nb = core.att.q_nb();
     let p_att: Matrix3<f64> = core
@@ -770,6 +828,48 @@ fn run_step(
     }
     core.t_us = step.t_us;
     solution(cfg, core, step.dt_s, step.gap, gnss_nis, imu)
+}
+
+/// Transfer alignment (`AlignmentConfig`): fuse the reference attitude if the INS is in its
+/// GNSS phase, the last fused one is at least `min_interval_s` older and it is recent.
+fn fuse_ref_attitude(
+    cfg: &InsConfig,
+    core: &mut Core,
+    stats: &mut InsStats,
+    t_us: u64,
+    r: &RefAttitude,
+) {
+    let a = &cfg.alignment;
+    let lag_s = (t_us as f64 - r.t_us as f64) / US_PER_S;
+    let due = core
+        .last_ref_attitude_us
+        .is_none_or(|last| (r.t_us.saturating_sub(last) as f64) / US_PER_S >= a.min_interval_s);
+    let gnss_phase = matches!(core.position, PositionMode::Gnss { .. });
+    if !gnss_phase || !due || lag_s.abs() > a.max_lag_s {
+        stats.ref_attitude_unused += 1;
+        return;
+    }
+    let var = a.ref_attitude_sigma_deg.to_radians().powi(2);
+    match core.att.update_reference(&r.q_nb, lag_s, var, a.gate_chi2) {
+        Ok(_) => {
+            stats.ref_attitude_fused += 1;
+            core.consecutive_ref_gated = 0;
+            core.last_ref_attitude_us = Some(r.t_us);
+        }
+        Err(ekf::UpdateRejection::Gated { .. }) => {
+            stats.ref_attitude_gated += 1;
+            core.consecutive_ref_gated += 1;
+            // Decimated like the fused ones, so the restart takes that many intervals.
+            core.last_ref_attitude_us = Some(r.t_us);
+            if core.consecutive_ref_gated >= a.max_consecutive_rejections {
+                let q_then = r.q_nb * so3::exp(&(core.att.w_nb_b() * lag_s));
+                core.att.reset_attitude(&q_then, var);
+                core.consecutive_ref_gated = 0;
+                stats.ref_attitude_resets += 1;
+            }
+        }
+        Err(ekf::UpdateRejection::Numerical) => stats.numerical_rejections += 1,
+    }
 }
 
 /// Assemble the solution from the filters.
@@ -905,6 +1005,11 @@ fn valid_air(l: &InputLimits, s: &AirSample) -> bool {
         && s.temp_k <= l.max_temp_k
         && vane_ok(s.aoa_rad)
         && vane_ok(s.aos_rad)
+}
+
+fn valid_ref_attitude(s: &RefAttitude) -> bool {
+    let q = s.q_nb.quaternion();
+    q.coords.iter().all(|x| x.is_finite()) && (q.norm() - 1.0).abs() < 1e-6
 }
 
 fn valid_mag(l: &InputLimits, s: &MagSample) -> bool {

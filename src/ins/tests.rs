@@ -20,6 +20,7 @@ use rand_chacha::ChaCha8Rng;
 use super::*;
 use crate::env::atmosphere::{self, AtmosphereOffsets};
 use crate::math::so3;
+use crate::sensors::RefAttitude;
 
 /// Gyro white-noise density, rad/s^0.5 (author_impl §2.1: 0.043 °/s per sample at 100 Hz).
 const GYRO_DENSITY: f64 = 7.504_915_783_575_618e-5;
@@ -1201,4 +1202,199 @@ mod fuzz {
             }
         }
     }
+}
+
+/// Reference attitudes as an autopilot would report them: `q_true ∘ Exp(ε)` at 50 Hz with a
+/// white ε of `sigma_deg` per axis plus a constant `offset` (body tangent, rad), inserted
+/// before the IMU sample of the same instant.
+fn with_reference(
+    sigma_deg: f64,
+    offset: Vector3<f64>,
+    seed: u64,
+) -> impl FnMut(&Truth, SensorEvent) -> Vec<SensorEvent> {
+    let mut rng = ChaCha8Rng::seed_from_u64(seed);
+    move |tr, e| {
+        if !matches!(e, SensorEvent::Imu(_)) || !tr.t_us.is_multiple_of(20_000) {
+            return vec![e];
+        }
+        let mut n = || {
+            let u1: f64 = 1.0 - rng.random::<f64>();
+            let u2: f64 = rng.random::<f64>();
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let eps = Vector3::new(n(), n(), n()) * sigma_deg.to_radians() + offset;
+        vec![
+            SensorEvent::RefAttitude(RefAttitude {
+                t_us: tr.t_us,
+                q_nb: so3::plus(&tr.q_nb, &eps),
+            }),
+            e,
+        ]
+    }
+}
+
+/// A start in flight with unknown sensor errors (cold start: zero estimates, cold σ), straight
+/// and level, 120 s of GNSS. Returns the final solution and the INS.
+fn cold_start_in_flight(seed: u64, reference: bool) -> (Truth, InsSolution, Ins) {
+    let mut synth = Synth::new(turn_motion(0.0), 100.0, seed);
+    let tr = synth.truth();
+    let init = InsInit::new(tr.q_nb, tr.pos, tr.v_n, YEAR);
+    let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
+    let mut last = None;
+    let tamper: Box<dyn FnMut(&Truth, SensorEvent) -> Vec<SensorEvent>> = if reference {
+        Box::new(with_reference(0.5, Vector3::zeros(), seed))
+    } else {
+        Box::new(|_, e| vec![e])
+    };
+    run_with(&mut synth, &mut ins, 120.0, tamper, |_, tr, sol| {
+        last = Some((*tr, *sol));
+    });
+    let (tr, sol) = last.unwrap();
+    (tr, sol, ins)
+}
+
+#[test]
+fn transfer_alignment_estimates_the_sensor_errors_of_a_start_in_flight() {
+    // Straight and level, unknown sensor errors (ERRORS: gyro 0.09–0.17 °/s, magnetometer
+    // 300–400 nT). Without a reference the heading is only as good as the magnetometer, whose
+    // unknown body-fixed error cannot be told from a heading error on a straight leg:
+    // |E_mag,h| / |B_h| ≈ 500 nT / 19 µT ≈ 1.5°. With the autopilot's attitude (σ 0.5°,
+    // fused once a second) both errors become observable.
+    let (tr, sol, ins) = cold_start_in_flight(3, true);
+    let e = att_err(&tr, &sol);
+    assert!(e.norm() < ATT_NORM_MAX_RAD, "attitude error {e}");
+    assert!(within(&e, &sol.cov.attitude_rad2, 0.0), "{e}");
+    let e_gyr_err = sol.e_gyr_rps - ERRORS.e_gyr;
+    let sigma = sol.cov.e_gyr_rad2ps2.diagonal().map(f64::sqrt);
+    assert!(sigma.max() < 0.05 * COLD_E_GYR_SIGMA_RPS, "σ {sigma}");
+    assert!(
+        within(&e_gyr_err, &sol.cov.e_gyr_rad2ps2, 0.0),
+        "{e_gyr_err} σ {sigma}"
+    );
+    // Every reference is accounted for: one per second fused, none gated, the rest unused
+    // (50 Hz), the one of the first instant dropped with the initialisation.
+    let st = ins.stats();
+    assert_eq!(st.ref_attitude.accepted, 6_000);
+    assert_eq!((st.ref_attitude_fused, st.ref_attitude_gated), (120, 0));
+    assert_eq!(st.ref_attitude_unused, 6_000 - 120);
+    // Control: the same start without the reference is off by about the magnetometer error.
+    let (tr0, sol0, ins0) = cold_start_in_flight(3, false);
+    let e0 = att_err(&tr0, &sol0);
+    assert!(e0.norm() > 3.0 * ATT_NORM_MAX_RAD, "without reference {e0}");
+    assert_eq!(ins0.stats().ref_attitude_fused, 0);
+}
+
+#[test]
+fn reference_attitude_is_not_used_after_gnss_loss() {
+    let mut synth = Synth::new(turn_motion(10.0), 100.0, 4);
+    synth.gnss_until_us = 60_000_001;
+    let mut ins = new_ins(&mut synth);
+    let mut fused_at_loss = None;
+    run_with(
+        &mut synth,
+        &mut ins,
+        120.0,
+        with_reference(0.5, Vector3::zeros(), 4),
+        |_, _, sol| {
+            if sol.gnss_denied && fused_at_loss.is_none() {
+                fused_at_loss = Some(sol.t_us);
+            }
+        },
+    );
+    let st = ins.stats();
+    let denied_s = st.gnss_denied_since_us.unwrap() as f64 * 1e-6;
+    // One per second up to the loss (timeout 1.5 s after the last fix at 60 s), none after:
+    // the first at 0.02 s (the one at 0 s precedes the first IMU step), then every 1 s.
+    assert!((61.0..=62.0).contains(&denied_s), "{denied_s}");
+    assert_eq!(st.ref_attitude_fused, (denied_s - 0.02).floor() as u64 + 1);
+    assert_eq!(
+        st.ref_attitude_fused + st.ref_attitude_unused,
+        st.ref_attitude.accepted
+    );
+}
+
+#[test]
+fn an_outlier_reference_is_gated_and_a_persistent_offset_restarts_the_attitude() {
+    // References 20° off for one second among good ones (one of them is due for fusion):
+    // gated, the attitude does not move.
+    let mut synth = Synth::new(turn_motion(10.0), 100.0, 5);
+    let mut ins = new_ins(&mut synth);
+    let mut good = with_reference(0.5, Vector3::zeros(), 5);
+    let yaw_20 = Vector3::new(0.0, 0.0, 20f64.to_radians());
+    let outlier = |tr: &Truth, e: SensorEvent| {
+        let mut out = good(tr, e);
+        if (30_000_000..31_000_000).contains(&tr.t_us)
+            && let SensorEvent::RefAttitude(r) = &mut out[0]
+        {
+            r.q_nb = so3::plus(&r.q_nb, &yaw_20);
+        }
+        out
+    };
+    run_with(&mut synth, &mut ins, 60.0, outlier, |_, tr, sol| {
+        if tr.t_us > 20_000_000 {
+            let e = att_err(tr, sol);
+            assert!(e.norm() < ATT_NORM_MAX_RAD, "t {} {e}", tr.t_us);
+        }
+    });
+    let st = ins.stats();
+    assert_eq!((st.ref_attitude_gated, st.ref_attitude_resets), (1, 0));
+
+    // An INS whose attitude is 10° off in yaw but believes it within 0.06° (a re-start that
+    // kept an attitude which drifted while GNSS was lost): the correct references are gated,
+    // and after `max_consecutive_rejections` of them in a row the attitude restarts at the
+    // reference and stays there (the magnetometer agrees with it).
+    let mut synth = Synth::new(turn_motion(10.0), 100.0, 6);
+    let mut init = synth.init();
+    init.q_nb = so3::plus(&init.q_nb, &Vector3::new(0.0, 0.0, 10f64.to_radians()));
+    let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
+    let n = InsConfig::default().alignment.max_consecutive_rejections;
+    run_with(
+        &mut synth,
+        &mut ins,
+        30.0,
+        with_reference(0.5, Vector3::zeros(), 6),
+        |_, tr, sol| {
+            // Restarted after n intervals of 1 s; then within the reference's σ and converging.
+            if tr.t_us > (u64::from(n) + 5) * 1_000_000 {
+                let e = att_err(tr, sol);
+                assert!(e.norm() < 1f64.to_radians(), "t {} {e}", tr.t_us);
+            }
+        },
+    );
+    let st = ins.stats();
+    assert_eq!(
+        (st.ref_attitude_gated, st.ref_attitude_resets),
+        (u64::from(n), 1)
+    );
+}
+
+#[test]
+fn invalid_or_repeated_reference_attitudes_are_rejected_and_counted() {
+    use nalgebra::Quaternion;
+    let mut synth = Synth::new(turn_motion(0.0), 100.0, 7);
+    let mut ins = new_ins(&mut synth);
+    let nan = UnitQuaternion::new_unchecked(Quaternion::new(f64::NAN, 0.0, 0.0, 0.0));
+    let long = UnitQuaternion::new_unchecked(Quaternion::new(2.0, 0.0, 0.0, 0.0));
+    let tamper = |tr: &Truth, e: SensorEvent| {
+        if !matches!(e, SensorEvent::Imu(_)) || tr.t_us != 5_000_000 {
+            return vec![e];
+        }
+        let r = |t_us, q_nb| SensorEvent::RefAttitude(RefAttitude { t_us, q_nb });
+        vec![
+            r(tr.t_us, nan),
+            r(tr.t_us, long),
+            r(tr.t_us, tr.q_nb),
+            r(tr.t_us, tr.q_nb),
+            e,
+        ]
+    };
+    run_with(&mut synth, &mut ins, 10.0, tamper, |_, tr, sol| {
+        assert!(att_err(tr, sol).norm() < ATT_NORM_MAX_RAD);
+    });
+    let st = ins.stats().ref_attitude;
+    assert_eq!(
+        (st.accepted, st.rejected_invalid, st.rejected_time),
+        (1, 2, 1)
+    );
+    assert_eq!(ins.stats().ref_attitude_fused, 1);
 }

@@ -35,7 +35,7 @@ use crate::config::TemperatureSource;
 use crate::env::atmosphere;
 use crate::math::so3;
 use crate::math::wgs84::Geodetic;
-use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, SensorEvent};
+use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
 use mavlink::dialects::ardupilotmega as apm;
 
 /// Standard gravity, m/s² (the "g" of mG).
@@ -106,6 +106,8 @@ pub struct InputCounters {
     pub mag: u64,
     /// GNSS events produced.
     pub gnss: u64,
+    /// Autopilot attitude events produced (transfer alignment).
+    pub attitude: u64,
     /// Rejected: non-finite values.
     pub non_finite: u64,
     /// Rejected: out of range.
@@ -301,6 +303,7 @@ impl InputDecoder {
                 SensorEvent::Air(_) => self.counters.air += 1,
                 SensorEvent::Mag(_) => self.counters.mag += 1,
                 SensorEvent::Gnss(_) => self.counters.gnss += 1,
+                SensorEvent::RefAttitude(_) => self.counters.attitude += 1,
                 SensorEvent::Frame(_) => {}
             }
         }
@@ -422,10 +425,9 @@ impl InputDecoder {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
                 let (r, p, y) = (f64::from(m.roll), f64::from(m.pitch), f64::from(m.yaw));
                 finite(&[r, p, y])?;
-                self.attitude = Some(ApAttitude {
-                    t_us,
-                    q_nb: so3::from_euler_zyx(y, p, r),
-                });
+                let q_nb = so3::from_euler_zyx(y, p, r);
+                self.attitude = Some(ApAttitude { t_us, q_nb });
+                out.push(SensorEvent::RefAttitude(RefAttitude { t_us, q_nb }));
                 Ok(())
             }
             M::GLOBAL_POSITION_INT(m) => {

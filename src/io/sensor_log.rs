@@ -11,7 +11,8 @@
 //!   - 3 magnetometer: x y z (nT);
 //!   - 4 GNSS: lat (rad), lon (rad), h (m), v N E D (m/s), σ horizontal, σ vertical (m),
 //!     σ velocity (m/s);
-//!   - 5 frame: `u32` width, `u32` height, then width·height grey bytes.
+//!   - 5 frame: `u32` width, `u32` height, then width·height grey bytes;
+//!   - 6 reference attitude: unit quaternion body → NED, w i j k.
 //!
 //! Readers skip record kinds they do not know (the length says how far), so the format can
 //! grow without breaking old readers.
@@ -19,10 +20,10 @@
 use std::io::{self, Read, Write};
 use std::sync::Arc;
 
-use nalgebra::Vector3;
+use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use crate::math::wgs84::Geodetic;
-use crate::sensors::{AirSample, Frame, GnssFix, ImuSample, MagSample, SensorEvent};
+use crate::sensors::{AirSample, Frame, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"IANAVLOG";
@@ -36,6 +37,7 @@ const KIND_AIR: u8 = 2;
 const KIND_MAG: u8 = 3;
 const KIND_GNSS: u8 = 4;
 const KIND_FRAME: u8 = 5;
+const KIND_REF_ATTITUDE: u8 = 6;
 
 /// Errors reading a sensor log.
 #[derive(Debug, thiserror::Error)]
@@ -122,6 +124,11 @@ impl<W: Write> SensorLogWriter<W> {
                 p.extend_from_slice(&f.pixels);
                 KIND_FRAME
             }
+            SensorEvent::RefAttitude(a) => {
+                let q = a.q_nb.quaternion();
+                put(&[q.w, q.i, q.j, q.k]);
+                KIND_REF_ATTITUDE
+            }
         };
         let len = u32::try_from(self.payload.len())
             .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "record too large"))?;
@@ -180,7 +187,7 @@ impl<R: Read> SensorLogReader<R> {
             if let Some(event) = decode(kind, &self.payload) {
                 return Ok(Some(event));
             }
-            if (KIND_IMU..=KIND_FRAME).contains(&kind) {
+            if (KIND_IMU..=KIND_REF_ATTITUDE).contains(&kind) {
                 return Err(SensorLogError::BadRecord { kind, len });
             }
             // Unknown kind from a newer writer: skip it.
@@ -273,6 +280,17 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
                 pixels: Arc::from(c.0),
             })
         }
+        KIND_REF_ATTITUDE => {
+            let q = Quaternion::new(c.f64()?, c.f64()?, c.f64()?, c.f64()?);
+            // Stored unit: kept bit for bit; anything else is a corrupt record.
+            if (q.norm() - 1.0).abs() > 1e-9 {
+                return None;
+            }
+            SensorEvent::RefAttitude(RefAttitude {
+                t_us,
+                q_nb: UnitQuaternion::new_unchecked(q),
+            })
+        }
         _ => return None,
     };
     Some(event)
@@ -318,6 +336,10 @@ mod tests {
                 width: 3,
                 height: 2,
                 pixels: Arc::from(&[1_u8, 2, 3, 4, 5, 6][..]),
+            }),
+            SensorEvent::RefAttitude(RefAttitude {
+                t_us: 100_500,
+                q_nb: UnitQuaternion::from_euler_angles(0.1, -0.05, 2.9),
             }),
         ]
     }

@@ -20,7 +20,7 @@
 //!   faster than real time, where the daemon's clock would compress every Δt): `t_us` is the
 //!   autopilot's own time, continued across reboots (each reboot adds the newest time seen
 //!   before it); unstamped messages take the newest clock-message stamp.
-//! - [`MonotonicGate`]: per sensor kind, mapped times must strictly increase; duplicates and
+//! - [`MonotonicGate`]: per sensor kind, mapped times must strictly increase; repeats and
 //!   out-of-order samples are rejected and counted.
 
 use crate::io::mavlink_in::ApTime;
@@ -288,26 +288,39 @@ pub enum Kind {
     Gnss = 3,
     /// Camera frames.
     Frame = 4,
+    /// The autopilot's attitude.
+    RefAttitude = 5,
 }
 
 /// Per-kind strictly increasing times.
 #[derive(Debug, Clone, Default)]
 pub struct MonotonicGate {
-    last_us: [Option<u64>; 5],
-    /// Samples refused as duplicate or out of order.
+    last_us: [Option<u64>; 6],
+    /// Samples refused as older than the previous one of their kind (reordering).
     pub rejected: u64,
+    /// Samples refused as repeats: the same time as the previous one of their kind (a 1 Hz
+    /// fix resent at a 5 Hz message rate, the pressure of both AIRSPEED and HIGHRES_IMU).
+    pub repeated: u64,
 }
 
 impl MonotonicGate {
     /// Accept `t_us` for `kind` if it is after the previous accepted one.
     pub fn accept(&mut self, kind: Kind, t_us: u64) -> bool {
         let slot = &mut self.last_us[kind as usize];
-        if slot.is_some_and(|last| t_us <= last) {
-            self.rejected += 1;
-            return false;
+        match *slot {
+            Some(last) if t_us == last => {
+                self.repeated += 1;
+                false
+            }
+            Some(last) if t_us < last => {
+                self.rejected += 1;
+                false
+            }
+            _ => {
+                *slot = Some(t_us);
+                true
+            }
         }
-        *slot = Some(t_us);
-        true
     }
 }
 
@@ -466,6 +479,6 @@ mod tests {
         assert!(!g.accept(Kind::Imu, 10));
         assert!(!g.accept(Kind::Imu, 9));
         assert!(g.accept(Kind::Imu, 11));
-        assert_eq!(g.rejected, 2);
+        assert_eq!((g.rejected, g.repeated), (1, 1));
     }
 }

@@ -350,6 +350,8 @@ impl Vehicle {
                     self.stats.frames += 1;
                     self.frames.push(f);
                 }
+                // The flight's sensors make none; the vehicle reports its own estimate.
+                SensorEvent::RefAttitude(_) => {}
             }
         }
         self.collector.events = events;
