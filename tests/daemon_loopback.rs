@@ -257,6 +257,25 @@ async fn survives_garbage_floods_reboots_link_loss_and_a_flaky_camera() {
         c.rx_v1_frames
     );
 
+    // Frames of the autopilot's own stream with a bad CRC or an unknown id: the mavlink crate
+    // drops them silently; the gaps they leave in its sequence numbers are counted.
+    let lost0 = h.shared.counters().rx_seq_lost;
+    for k in 0..20 {
+        let hud = apm::MavMessage::VFR_HUD(apm::VFR_HUD_DATA::default());
+        fake.send_dropped_frame(&hud, k % 2 == 0).await;
+        tokio::time::sleep(Duration::from_millis(5)).await;
+    }
+    let t = Instant::now();
+    assert!(
+        wait_for(Duration::from_secs(3), || odo_since(t) > 10).await,
+        "publishing after dropped frames"
+    );
+    let lost = h.shared.counters().rx_seq_lost - lost0;
+    assert!(
+        (20..40).contains(&lost),
+        "{lost} frames counted missing for 20 dropped (plus any UDP loss)"
+    );
+
     // 2. 10× IMU flood for 1 s: nothing decoded is lost on the way to the navigation thread.
     let sent0 = fake.ctl.lock().unwrap().imu_sent;
     fake.ctl.lock().unwrap().imu_per_tick = 10;

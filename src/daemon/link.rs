@@ -92,11 +92,55 @@ pub(super) async fn writer(
     }
 }
 
+/// Frames missing from a sender's 8-bit sequence. The mavlink crate drops frames with a bad
+/// CRC, an unknown message id or a refused signature without telling us (rust-mavlink #209);
+/// each of them, like a lost datagram, leaves a gap in the autopilot's sequence.
+#[derive(Debug, Clone)]
+pub(super) struct SequenceTracker {
+    /// Last sequence number per component id.
+    last: [Option<u8>; 256],
+    /// Frames missing (gaps of 1–127).
+    pub lost: u64,
+    /// Frames repeated or arriving late (gaps of 128–255, i.e. behind the previous one).
+    pub reordered: u64,
+}
+
+impl Default for SequenceTracker {
+    fn default() -> Self {
+        Self {
+            last: [None; 256],
+            lost: 0,
+            reordered: 0,
+        }
+    }
+}
+
+impl SequenceTracker {
+    /// Account for a frame of component `comp` with sequence `seq`.
+    pub fn observe(&mut self, comp: u8, seq: u8) {
+        if let Some(last) = self.last[usize::from(comp)] {
+            let gap = seq.wrapping_sub(last).wrapping_sub(1);
+            match gap {
+                0 => {}
+                1..=127 => self.lost += u64::from(gap),
+                _ => self.reordered += 1,
+            }
+        }
+        self.last[usize::from(comp)] = Some(seq);
+    }
+
+    /// Forget the sequences (the autopilot rebooted and restarts at 0).
+    pub fn reset(&mut self) {
+        self.last = [None; 256];
+    }
+}
+
 /// Per-connection-independent state of the reader.
 struct ReaderState {
     ts: TimeSync,
     dec: InputDecoder,
     gate: MonotonicGate,
+    seq: SequenceTracker,
     init_sent: bool,
 }
 
@@ -127,6 +171,7 @@ pub(super) async fn reader(
             default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
         }),
         gate: MonotonicGate::default(),
+        seq: SequenceTracker::default(),
         init_sent: false,
     };
     let mut backoff = Duration::from_millis(100);
@@ -279,6 +324,7 @@ async fn handle_raw(
         && st.ts.observe_clock(ap_us, rx_us)
     {
         st.dec.reset();
+        st.seq.reset();
         shared.state(|s| s.request_generation += 1);
         shared.count(|c| c.autopilot_reboots += 1);
         outbox.status(
@@ -286,6 +332,13 @@ async fn handle_raw(
             "ianav: autopilot reboot detected",
         );
     }
+    // After the reboot check: a reboot restarts the sequence, which is not a loss.
+    st.seq.observe(comp, raw.sequence());
+    let (lost, reordered) = (st.seq.lost, st.seq.reordered);
+    shared.count(|c| {
+        c.rx_seq_lost = lost;
+        c.rx_seq_reordered = reordered;
+    });
     match &msg {
         M::TIMESYNC(t) => {
             if let Some(reply) = st.ts.handle(t, clock.now_ns(), sys, comp) {
@@ -437,5 +490,36 @@ pub(super) async fn interval_requests(
         }
         shared.count(|c| c.interval_requests += 1);
         tracing::info!(?kind, "message intervals requested");
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::SequenceTracker;
+
+    #[test]
+    fn sequence_gaps_count_missing_frames_and_late_ones_apart() {
+        let mut t = SequenceTracker::default();
+        for seq in [250, 251, 252] {
+            t.observe(1, seq);
+        }
+        assert_eq!((t.lost, t.reordered), (0, 0));
+        // 253 and 254 dropped (say a bad CRC); wrap-around 255 → 0 is no gap.
+        t.observe(1, 255);
+        t.observe(1, 0);
+        assert_eq!((t.lost, t.reordered), (2, 0));
+        // A repeat and a late frame.
+        t.observe(1, 0);
+        t.observe(1, 1);
+        t.observe(1, 0);
+        assert_eq!((t.lost, t.reordered), (2, 2));
+        // Components are independent; the first frame of one sets no gap.
+        t.observe(200, 77);
+        t.observe(200, 80);
+        assert_eq!((t.lost, t.reordered), (4, 2));
+        // After a reboot the sequence restarts without a count.
+        t.reset();
+        t.observe(1, 0);
+        assert_eq!((t.lost, t.reordered), (4, 2));
     }
 }

@@ -115,6 +115,11 @@ pub struct Counters {
     pub rx_signed_frames: u64,
     /// Frames whose payload did not parse (bad enum value, bad length).
     pub rx_parse_errors: u64,
+    /// Frames missing from the autopilot's sequence numbers: bad CRC, unknown message id,
+    /// refused signature (all dropped silently by the mavlink crate) or lost in transport.
+    pub rx_seq_lost: u64,
+    /// Autopilot frames repeated or out of order by sequence number.
+    pub rx_seq_reordered: u64,
     /// Messages from systems other than the autopilot's (or carrying our own component id),
     /// ignored.
     pub rx_foreign: u64,
@@ -604,6 +609,7 @@ pub fn log_counters(c: &Counters) {
         rx = c.rx_frames,
         rx_v1 = c.rx_v1_frames,
         parse_err = c.rx_parse_errors,
+        seq_lost = c.rx_seq_lost,
         foreign = c.rx_foreign,
         imu = c.input.imu,
         air = c.input.air,

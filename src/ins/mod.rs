@@ -472,9 +472,9 @@ impl Ins {
                     s.t_us,
                     valid_ref_attitude(s),
                 ) {
-                    if !self.cfg.alignment.enabled || self.gnss_denied() {
-                        self.stats.ref_attitude_unused += 1;
-                    } else if self.pending_ref_attitude.replace(*s).is_some() {
+                    // Unused: alignment off, GNSS lost, or a newer one supersedes it.
+                    let usable = self.cfg.alignment.enabled && !self.gnss_denied();
+                    if !usable || self.pending_ref_attitude.replace(*s).is_some() {
                         self.stats.ref_attitude_unused += 1;
                     }
                 }

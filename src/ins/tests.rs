@@ -1241,11 +1241,8 @@ fn cold_start_in_flight(seed: u64, reference: bool) -> (Truth, InsSolution, Ins)
     let init = InsInit::new(tr.q_nb, tr.pos, tr.v_n, YEAR);
     let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
     let mut last = None;
-    let tamper: Box<dyn FnMut(&Truth, SensorEvent) -> Vec<SensorEvent>> = if reference {
-        Box::new(with_reference(0.5, Vector3::zeros(), seed))
-    } else {
-        Box::new(|_, e| vec![e])
-    };
+    let mut refs = with_reference(0.5, Vector3::zeros(), seed);
+    let tamper = |tr: &Truth, e| if reference { refs(tr, e) } else { vec![e] };
     run_with(&mut synth, &mut ins, 120.0, tamper, |_, tr, sol| {
         last = Some((*tr, *sol));
     });

@@ -196,6 +196,24 @@ impl Fake {
         let _ = self.sock.send_to(&f, self.daemon).await;
     }
 
+    /// Send `msg` in the autopilot's sequence with its CRC broken (`crc = true`) or, with
+    /// `crc = false`, a well-formed frame of an unknown message id (60000) in its place.
+    pub async fn send_dropped_frame(&self, msg: &apm::MavMessage, crc: bool) {
+        let seq = {
+            let mut s = self.seq.lock().unwrap();
+            *s = s.wrapping_add(1);
+            *s
+        };
+        let mut f = frame(MavlinkVersion::V2, 1, 1, seq, msg);
+        if crc {
+            let n = f.len();
+            f[n - 1] ^= 0xa5;
+        } else {
+            f = vec![0xfd, 4, 0, 0, seq, 1, 1, 0x60, 0xea, 0x00, 1, 2, 3, 4, 0, 0];
+        }
+        let _ = self.sock.send_to(&f, self.daemon).await;
+    }
+
     pub async fn send_raw(&self, bytes: &[u8]) {
         let _ = self.sock.send_to(bytes, self.daemon).await;
     }
