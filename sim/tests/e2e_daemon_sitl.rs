@@ -527,9 +527,9 @@ fn compare(off: &Offline, odo: &BTreeMap<u64, Pose>, year: f64) -> Compared {
 /// Largest airspeed of scenario #2's draws, m/s.
 const V_MAX_MPS: f64 = 34.0;
 /// Heading difference between the daemon and the offline INS at GNSS loss, rad. The
-/// daemon's INS starts with unknown sensor errors and is aligned once a second on the
+/// daemon's INS starts with unknown sensor errors and is aligned five times a second on the
 /// vehicle's ATTITUDE, which is the offline INS's attitude (σ 0.5° assumed per reference):
-/// after the 150 s of GNSS its heading σ relative to that reference is ≈ 0.5°/√150 ≈ 0.04°
+/// after the 150 s of GNSS its heading σ relative to that reference is ≈ 0.5°/√750 ≈ 0.02°
 /// plus the gyro-error walk, reported by the filter as 0.05–0.08°; 0.1° bounds it.
 const D_PSI_RAD: f64 = 0.1 * std::f64::consts::PI / 180.0;
 /// Heading difference that MAVLink transport may cause, rad (see
@@ -800,7 +800,7 @@ async fn imu_at_25_hz_versus_100_hz() {
             assert_eq!(run.stream_defects, (0, 0, 0));
             let ins = c.ins.as_ref().unwrap();
             assert_eq!((ins.imu.rejected_time, ins.imu_gaps), (0, 0), "{ins:?}");
-            assert_eq!(c.nav.initialisations, 1, "no estimator reset");
+            assert_eq!(c.nav.initialisations, 1, "no estimator reset: {ins:?}");
             let expected_imu = ((setup.scenario.warmup_s + MISSION_S) * imu_hz).round() as u64;
             assert!(
                 c.input.imu.abs_diff(expected_imu) <= 2,

@@ -225,8 +225,9 @@ pub struct AlignmentConfig {
     /// σ of the reference attitude per axis, deg.
     pub ref_attitude_sigma_deg: f64,
     /// Shortest time between two fused references, s: the reference's errors are correlated
-    /// over seconds, so fusing every sample would make the filter trust it far more than its
-    /// σ says.
+    /// over seconds, so fusing every 25–50 Hz sample would make the filter trust it far more
+    /// than its σ says; once a second was too slow to hold a cold start at a 25 Hz IMU
+    /// (docs/INS.md).
     pub min_interval_s: f64,
     /// References older than this at the IMU step that consumes them are not fused, s.
     pub max_lag_s: f64,
@@ -244,7 +245,7 @@ impl Default for AlignmentConfig {
         Self {
             enabled: true,
             ref_attitude_sigma_deg: 0.5,
-            min_interval_s: 1.0,
+            min_interval_s: 0.2,
             max_lag_s: 0.1,
             gate_chi2: 16.27,
             max_consecutive_rejections: 5,
