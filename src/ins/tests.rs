@@ -40,6 +40,13 @@ const GNSS_VEL: f64 = 0.0741;
 /// Decimal year of the magnetic model.
 const YEAR: f64 = 2026.0;
 
+/// One N(0, 1) draw (Box–Muller).
+fn standard_normal(rng: &mut ChaCha8Rng) -> f64 {
+    let u1: f64 = 1.0 - rng.random::<f64>();
+    let u2: f64 = rng.random::<f64>();
+    (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+}
+
 /// Constant-rate motion (module doc).
 #[derive(Debug, Clone, Copy)]
 struct Motion {
@@ -174,10 +181,7 @@ impl Synth {
         if !self.noise {
             return 0.0;
         }
-        // Box–Muller.
-        let u1: f64 = 1.0 - self.rng.random::<f64>();
-        let u2: f64 = self.rng.random::<f64>();
-        (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        standard_normal(&mut self.rng)
     }
 
     fn noise3(&mut self, sigma: f64) -> Vector3<f64> {
@@ -402,6 +406,18 @@ fn within(err: &Vector3<f64>, cov: &Matrix3<f64>, floor: f64) -> bool {
     (0..3).all(|i| err[i].abs() <= K_SIGMA * cov[(i, i)].max(0.0).sqrt() + floor)
 }
 
+/// The gyro error of a cold start has been estimated: its σ has shrunk from the cold
+/// 3.5e-3 rad/s to below 5 % of it, and the estimate lies within 5σ of the truth.
+fn assert_gyro_error_estimated(sol: &InsSolution) {
+    let e_gyr_err = sol.e_gyr_rps - ERRORS.e_gyr;
+    let sigma = sol.cov.e_gyr_rad2ps2.diagonal().map(f64::sqrt);
+    assert!(sigma.max() < 0.05 * COLD_E_GYR_SIGMA_RPS, "σ {sigma}");
+    assert!(
+        within(&e_gyr_err, &sol.cov.e_gyr_rad2ps2, 0.0),
+        "{e_gyr_err} σ {sigma}"
+    );
+}
+
 fn turn_motion(bank_deg: f64) -> Motion {
     Motion::level(
         wisconsin(1500.0),
@@ -476,13 +492,7 @@ fn static_alignment(seed: u64) {
     // The gyro error is observable at rest through the attitude (gravity and magnetic field
     // pin it, the body rate state must then be zero): its σ must have shrunk from the cold
     // 3.5e-3 rad/s to below 5 % of it, and the estimate must lie within 5σ of the truth.
-    let e_gyr_err = sol.e_gyr_rps - ERRORS.e_gyr;
-    let sigma = sol.cov.e_gyr_rad2ps2.diagonal().map(f64::sqrt);
-    assert!(sigma.max() < 0.05 * COLD_E_GYR_SIGMA_RPS, "σ {sigma}");
-    assert!(
-        within(&e_gyr_err, &sol.cov.e_gyr_rad2ps2, 0.0),
-        "{e_gyr_err} σ {sigma}"
-    );
+    assert_gyro_error_estimated(&sol);
     // Velocity ~0 (already within 5σ above); the body rate w.r.t. NED is zero at rest.
     assert!(within(&sol.w_nb_b_rps, &sol.cov.w_nb_b_rad2ps2, 0.0));
     assert_eq!(ins.stats().gnss_fused, 300);
@@ -1217,11 +1227,7 @@ fn with_reference(
         if !matches!(e, SensorEvent::Imu(_)) || !tr.t_us.is_multiple_of(20_000) {
             return vec![e];
         }
-        let mut n = || {
-            let u1: f64 = 1.0 - rng.random::<f64>();
-            let u2: f64 = rng.random::<f64>();
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        };
+        let mut n = || standard_normal(&mut rng);
         let eps = Vector3::new(n(), n(), n()) * sigma_deg.to_radians() + offset;
         vec![
             SensorEvent::RefAttitude(RefAttitude {
@@ -1261,13 +1267,7 @@ fn transfer_alignment_estimates_the_sensor_errors_of_a_start_in_flight() {
     let e = att_err(&tr, &sol);
     assert!(e.norm() < ATT_NORM_MAX_RAD, "attitude error {e}");
     assert!(within(&e, &sol.cov.attitude_rad2, 0.0), "{e}");
-    let e_gyr_err = sol.e_gyr_rps - ERRORS.e_gyr;
-    let sigma = sol.cov.e_gyr_rad2ps2.diagonal().map(f64::sqrt);
-    assert!(sigma.max() < 0.05 * COLD_E_GYR_SIGMA_RPS, "σ {sigma}");
-    assert!(
-        within(&e_gyr_err, &sol.cov.e_gyr_rad2ps2, 0.0),
-        "{e_gyr_err} σ {sigma}"
-    );
+    assert_gyro_error_estimated(&sol);
     // Every reference is accounted for: one per `min_interval_s` (0.2 s) fused, none gated,
     // the rest unused (50 Hz), the one of the first instant dropped with the initialisation.
     let st = ins.stats();
