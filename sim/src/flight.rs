@@ -649,6 +649,12 @@ impl Flight {
         &self.estimate
     }
 
+    /// The vehicle's own INS solution (`None` before the first fix or under truth
+    /// navigation): what an autopilot derives its reported estimates from (e.g. its wind).
+    pub fn ins_solution(&self) -> Option<&InsSolution> {
+        self.ins_solution.as_ref()
+    }
+
     /// Fly on `aid` (see [`PositionAid`]) as long as it is at most `max_age_us` old, from the
     /// next sensor instant on; a newer call replaces it. Ignored under truth navigation.
     pub fn set_position_aid(&mut self, aid: PositionAid, max_age_us: u64) {

@@ -149,10 +149,15 @@ struct McArgs {
 /// Autopilot imitated by `sitl` (`--autopilot`).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, clap::ValueEnum)]
 enum AutopilotArg {
-    /// PX4 on an onboard link: HIGHRES_IMU at 100 Hz, every interval request accepted.
+    /// PX4 v1.16 on an onboard link: HIGHRES_IMU at 50 Hz (box averages, pressures in Pa),
+    /// no AIRSPEED or AOA_SSA stream.
     Px4,
-    /// ArduPlane: RAW_IMU at 25 Hz, intervals capped by its 50 Hz loop.
+    /// ArduPlane: 1 Hz stream groups, intervals under 25 ms DENIED, latest IMU samples
+    /// truncated to int16, AOA_SSA from its own estimate, lagged GNSS, drifting gyros.
     Ardupilot,
+    /// Not a real autopilot: PX4 identity, every simulated sample at its native rate
+    /// (HIGHRES_IMU, AIRSPEED, vane AOA_SSA at 100 Hz).
+    Ideal,
 }
 
 /// Options of `sitl`.
@@ -189,6 +194,29 @@ struct SitlArgs {
     /// Age beyond which the daemon's position is no longer flown on, s of simulated time.
     #[arg(long, default_value_t = 1.0)]
     estimate_timeout: f64,
+    /// Add ArduPilot SITL's gyro drift triangle (0.05°/s per minute, up to 0.25°/s) to the
+    /// gyro rates sent (default: on for ardupilot, off otherwise).
+    #[arg(long)]
+    gyro_drift: Option<bool>,
+    /// GNSS receiver lag, ms: GPS_RAW_INT reports a fix this much after it was taken
+    /// (default: 100 for ardupilot, 0 otherwise).
+    #[arg(long)]
+    gnss_lag_ms: Option<f64>,
+    /// Transport and processing latency of every stream, ms of simulated time.
+    #[arg(long, default_value_t = 0.0)]
+    latency_ms: f64,
+    /// Latency of one stream, NAME=MS (e.g. HIGHRES_IMU=40); repeatable, overrides
+    /// --latency-ms for that message.
+    #[arg(long, value_name = "NAME=MS")]
+    stream_latency: Vec<String>,
+}
+
+/// Milliseconds of an option → µs (finite, ≥ 0).
+fn option_ms_to_us(name: &str, ms: f64) -> anyhow::Result<u64> {
+    if !(ms.is_finite() && ms >= 0.0) {
+        anyhow::bail!("{name} must be a non-negative number of ms, got {ms}");
+    }
+    Ok((ms * 1e3).round() as u64)
 }
 
 /// Options of `render`.
@@ -608,18 +636,43 @@ fn sitl(args: &SitlArgs) -> Result<()> {
         );
     }
     let setup = setup(&args.fly.setup)?;
+    let autopilot = match args.autopilot {
+        AutopilotArg::Px4 => Autopilot::Px4,
+        AutopilotArg::Ardupilot => Autopilot::ArduPilot,
+        AutopilotArg::Ideal => Autopilot::Ideal,
+    };
+    let mut vehicle = VehicleConfig {
+        system_id: args.system_id,
+        fly_on_estimates: !args.no_external_position,
+        estimate_timeout_us: (args.estimate_timeout * 1e6).round() as u64,
+        ..VehicleConfig::for_autopilot(autopilot)
+    }
+    .with_latency_us(option_ms_to_us("--latency-ms", args.latency_ms)?);
+    if let Some(on) = args.gyro_drift {
+        vehicle.gyro_drift = on;
+    }
+    if let Some(ms) = args.gnss_lag_ms {
+        vehicle.gnss_lag_us = option_ms_to_us("--gnss-lag-ms", ms)?;
+    }
+    for spec in &args.stream_latency {
+        let Some((name, ms)) = spec.split_once('=') else {
+            bail!("--stream-latency wants NAME=MS, got {spec:?}");
+        };
+        let Some(i) = sitl::streams::stream_index_by_name(name.trim()) else {
+            bail!(
+                "--stream-latency: unknown stream {name:?} (one of {})",
+                sitl::streams::stream_names().join(", ")
+            );
+        };
+        let ms: f64 = ms
+            .trim()
+            .parse()
+            .map_err(|e| anyhow::anyhow!("--stream-latency {spec:?}: {e}"))?;
+        vehicle.latency_us[i] = option_ms_to_us("--stream-latency", ms)?;
+    }
     let options = SitlOptions {
         connect: args.connect.clone(),
-        vehicle: VehicleConfig {
-            autopilot: match args.autopilot {
-                AutopilotArg::Px4 => Autopilot::Px4,
-                AutopilotArg::Ardupilot => Autopilot::ArduPilot,
-            },
-            system_id: args.system_id,
-            component_id: 1,
-            fly_on_estimates: !args.no_external_position,
-            estimate_timeout_us: (args.estimate_timeout * 1e6).round() as u64,
-        },
+        vehicle,
         speed: args.speed,
         frames: args.frames_listen.clone().map(FramesListen::Addr),
         out_dir: args.out.clone(),

@@ -275,7 +275,7 @@ async fn fly(setup: &FlightSetup, seed: u64, autopilot: Autopilot, daemon_toml: 
         vehicle: VehicleConfig {
             autopilot,
             fly_on_estimates: false,
-            ..VehicleConfig::default()
+            ..VehicleConfig::for_autopilot(autopilot)
         },
         speed: SPEED,
         frames: None,

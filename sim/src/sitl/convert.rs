@@ -28,6 +28,15 @@ pub fn sat_i16(x: f64) -> i16 {
     x.round().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
 }
 
+/// Truncate toward zero and saturate to `i16`, as a C cast of a float to `int16_t` does in
+/// ArduPilot's int16 IMU and temperature fields (a 0.9 mrad/s rate becomes 0, −0.9 becomes 0).
+pub fn trunc_i16(x: f64) -> i16 {
+    if x.is_nan() {
+        return 0;
+    }
+    x.trunc().clamp(f64::from(i16::MIN), f64::from(i16::MAX)) as i16
+}
+
 /// Round and saturate to `i32`.
 pub fn sat_i32(x: f64) -> i32 {
     if x.is_nan() {

@@ -22,10 +22,13 @@ use ianav::sensors::{AirSample, Frame, GnssFix, ImuSample, MagSample, SensorEven
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{MavHeader, MessageData};
 
+use nalgebra::Vector3;
+
 use super::convert::{self, ExternalFix, ExternalFixError};
-use super::streams::{Autopilot, ImuAverager, IntervalOutcome, Streams};
+use super::streams::{Autopilot, ImuAverager, IntervalOutcome, STREAMABLE, Streams, stream_index};
 use super::timesync::ClockMap;
 use crate::flight::{Flight, FlightError, FlightObserver, FlightSetup, PositionAid};
+use crate::rng;
 
 /// Satellites the simulated receiver reports with a fix (it has no constellation model).
 pub const SATELLITES_WITH_FIX: u8 = 12;
@@ -33,6 +36,20 @@ pub const SATELLITES_WITH_FIX: u8 = 12;
 pub const TRUTH_HISTORY_US: u64 = 10_000_000;
 /// Window of the estimate-rate measurement, µs of vehicle time.
 pub const RATE_WINDOW_US: u64 = 1_000_000;
+
+/// ArduPilot SITL's gyro drift rate of change, rad/s per minute (`SIM_DRIFT_SPEED` 0.05°/s).
+pub const GYRO_DRIFT_RPS_PER_MIN: f64 = 0.05 * std::f64::consts::PI / 180.0;
+/// ArduPilot SITL's gyro drift half-period, minutes (`SIM_DRIFT_TIME`).
+pub const GYRO_DRIFT_HALF_PERIOD_MIN: f64 = 5.0;
+/// ArduPilot SITL's GNSS receiver lag, µs (`SIM_GPS1_LAG_MS` 100).
+pub const ARDUPILOT_GNSS_LAG_US: u64 = 100_000;
+/// ArduPilot computes AOA_SSA at most every 50 ms (`AP_AHRS::update_AOA_SSA`).
+pub const ARDUPILOT_AOA_SSA_PERIOD_MS: u64 = 50;
+/// Constant offset of the second barometer, 1-σ over seeds, Pa (our assumption: a different
+/// physical sensor; ArduPilot SITL gives its second barometer independent noise only).
+pub const BARO2_OFFSET_SIGMA_PA: f64 = 30.0;
+/// Second barometer's noise: uniform within ± this height, m (ArduPilot SITL `SIM_BAR2_RND`).
+pub const BARO2_NOISE_M: f64 = 0.2;
 
 /// Vehicle settings.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -47,25 +64,72 @@ pub struct VehicleConfig {
     pub fly_on_estimates: bool,
     /// Age beyond which a companion position is no longer flown on, µs of vehicle time.
     pub estimate_timeout_us: u64,
+    /// Add ArduPilot SITL's gyro drift (a triangle on all three axes, 0.05°/s per minute up
+    /// to 0.25°/s over 5 min and back) to the gyro rates sent. The vehicle's own INS does not
+    /// see it (an autopilot's EKF estimates it away).
+    pub gyro_drift: bool,
+    /// GNSS receiver lag, µs: a fix of the truth at `t` reaches the autopilot, and its
+    /// GPS_RAW_INT, at `t + lag` and is stamped with that reception time.
+    pub gnss_lag_us: u64,
+    /// Transport and processing latency of each stream (indexed like
+    /// [`super::streams::STREAMABLE`]), µs of vehicle time: a message built at `t` leaves at
+    /// `t + latency` (on the 10 ms sensor grid), with its content and stamps of `t`.
+    pub latency_us: [u64; STREAMABLE.len()],
 }
 
-impl Default for VehicleConfig {
-    fn default() -> Self {
+impl VehicleConfig {
+    /// The defaults of `autopilot`: ArduPilot with its SITL's 100 ms GNSS lag and gyro
+    /// drift, no added latency.
+    pub fn for_autopilot(autopilot: Autopilot) -> Self {
+        let ardupilot = autopilot == Autopilot::ArduPilot;
         Self {
-            autopilot: Autopilot::Px4,
+            autopilot,
             system_id: 1,
             component_id: 1,
             fly_on_estimates: true,
             estimate_timeout_us: 1_000_000,
+            gyro_drift: ardupilot,
+            gnss_lag_us: if ardupilot { ARDUPILOT_GNSS_LAG_US } else { 0 },
+            latency_us: [0; STREAMABLE.len()],
         }
     }
+
+    /// The same latency for every stream.
+    pub fn with_latency_us(mut self, latency_us: u64) -> Self {
+        self.latency_us = [latency_us; STREAMABLE.len()];
+        self
+    }
+}
+
+impl Default for VehicleConfig {
+    fn default() -> Self {
+        Self::for_autopilot(Autopilot::Px4)
+    }
+}
+
+/// ArduPilot SITL's gyro drift at boot time `t_us`, rad/s (the same on every axis): rises at
+/// [`GYRO_DRIFT_RPS_PER_MIN`] for [`GYRO_DRIFT_HALF_PERIOD_MIN`] minutes, then falls back.
+pub fn ardupilot_gyro_drift_rps(t_us: u64) -> f64 {
+    let period_min = 2.0 * GYRO_DRIFT_HALF_PERIOD_MIN;
+    let minutes = (t_us as f64 / 60e6).rem_euclid(period_min);
+    let ramp_min = if minutes < GYRO_DRIFT_HALF_PERIOD_MIN {
+        minutes
+    } else {
+        period_min - minutes
+    };
+    ramp_min * GYRO_DRIFT_RPS_PER_MIN
 }
 
 /// What the simulated receiver last reported.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub enum GnssReport {
-    /// A 3D fix.
-    Fix(GnssFix),
+    /// A 3D fix (of the truth at `fix.t_us`), received by the autopilot at `rx_us`.
+    Fix {
+        /// The fix.
+        fix: GnssFix,
+        /// Reception by the autopilot, µs (`fix.t_us` + receiver lag).
+        rx_us: u64,
+    },
     /// The receiver runs but has no fix (after the scenario's GNSS loss).
     NoFix {
         /// Report time, µs.
@@ -189,6 +253,23 @@ pub struct Vehicle {
     gnss: Option<GnssReport>,
     gnss_fresh: bool,
     gnss_period_us: u64,
+    /// Fixes taken but not yet received by the autopilot (receiver lag).
+    pending_fixes: VecDeque<GnssFix>,
+    /// Messages built but held back by their stream's latency: (release time µs, message),
+    /// in release order.
+    delayed: VecDeque<(u64, apm::MavMessage)>,
+    /// ArduPilot's AOA_SSA state: angles (deg) and the time of their last update (ms).
+    aoa_ssa_deg: Option<(f64, f64)>,
+    aoa_ssa_ms: Option<u64>,
+    /// Second barometer: constant offset (Pa) and its noise generator.
+    baro2_offset_pa: f64,
+    baro2_rng: rng::Stream,
+    /// Times of the magnetometer and air samples last reported in HIGHRES_IMU (PX4 sets
+    /// `fields_updated` only for new data).
+    highres_mag_t_us: Option<u64>,
+    highres_air_t_us: Option<u64>,
+    /// Id of the last chunked STATUSTEXT.
+    statustext_id: u16,
     origin: Option<MapProjection>,
     home_h_m: f64,
     boot_unix_us: u64,
@@ -238,6 +319,16 @@ impl Vehicle {
             gnss: None,
             gnss_fresh: false,
             gnss_period_us,
+            pending_fixes: VecDeque::new(),
+            delayed: VecDeque::new(),
+            aoa_ssa_deg: None,
+            aoa_ssa_ms: None,
+            baro2_offset_pa: BARO2_OFFSET_SIGMA_PA
+                * rng::normal(&mut rng::stream(seed, "sitl.baro2.offset")),
+            baro2_rng: rng::stream(seed, "sitl.baro2.noise"),
+            highres_mag_t_us: None,
+            highres_air_t_us: None,
+            statustext_id: 0,
             origin: None,
             home_h_m: 0.0,
             boot_unix_us: unix_us_of_decimal_year(setup.scenario.magnetic_decimal_year),
@@ -345,7 +436,7 @@ impl Vehicle {
                 }
                 SensorEvent::Air(s) => self.last_air = Some(s),
                 SensorEvent::Mag(s) => self.last_mag = Some(s),
-                SensorEvent::Gnss(fix) => self.on_fix(fix),
+                SensorEvent::Gnss(fix) => self.pending_fixes.push_back(fix),
                 SensorEvent::Frame(f) => {
                     self.stats.frames += 1;
                     self.frames.push(f);
@@ -360,7 +451,7 @@ impl Vehicle {
         }
     }
 
-    fn on_fix(&mut self, fix: GnssFix) {
+    fn on_fix(&mut self, fix: GnssFix, rx_us: u64) {
         if self.origin.is_none() {
             // The EKF origin and home: the first fix, as both autopilots set them.
             self.origin = Some(MapProjection::new(&fix.pos));
@@ -368,13 +459,23 @@ impl Vehicle {
             self.queue_origin();
         }
         self.unix_time_valid = true;
-        self.gnss = Some(GnssReport::Fix(fix));
+        self.gnss = Some(GnssReport::Fix { fix, rx_us });
         self.gnss_fresh = true;
     }
 
     /// One sensor instant of the vehicle's loop.
     fn tick(&mut self, t_us: u64) {
         let loss_us = self.flight.gnss_loss_t_us();
+        // Fixes reach the autopilot after the receiver lag (on the 10 ms grid).
+        while let Some(fix) = self
+            .pending_fixes
+            .front()
+            .copied()
+            .filter(|f| f.t_us + self.cfg.gnss_lag_us <= t_us)
+        {
+            self.pending_fixes.pop_front();
+            self.on_fix(fix, t_us);
+        }
         if t_us > loss_us && t_us.is_multiple_of(self.gnss_period_us) {
             // The receiver keeps reporting, without a fix.
             self.gnss = Some(GnssReport::NoFix { t_us });
@@ -422,8 +523,23 @@ impl Vehicle {
         if self.streams.is_loop_tick(t_us) {
             self.gnss_fresh = false;
         }
+        if self.cfg.autopilot == Autopilot::ArduPilot && self.streams.is_loop_tick(t_us) {
+            self.update_aoa_ssa(t_us);
+        }
         for id in due {
             if let Some(msg) = self.build(id, t_us) {
+                let latency_us = stream_index(id).map_or(0, |i| self.cfg.latency_us[i]);
+                if latency_us == 0 {
+                    self.queue(msg);
+                } else {
+                    let release_us = t_us + latency_us;
+                    let at = self.delayed.partition_point(|(r, _)| *r <= release_us);
+                    self.delayed.insert(at, (release_us, msg));
+                }
+            }
+        }
+        while self.delayed.front().is_some_and(|(r, _)| *r <= t_us) {
+            if let Some((_, msg)) = self.delayed.pop_front() {
                 self.queue(msg);
             }
         }
@@ -458,6 +574,102 @@ impl Vehicle {
         }
     }
 
+    /// The IMU sample an int16 IMU stream reports at `t_us`: ArduPilot's latest sample, else
+    /// the box average since the stream's previous message; with the gyro drift added when
+    /// configured.
+    fn imu_for_stream(&mut self, stream: ImuStream, t_us: u64) -> Option<ImuSample> {
+        let avg = match stream {
+            ImuStream::Scaled => &mut self.scaled_avg,
+            ImuStream::Raw => &mut self.raw_avg,
+        };
+        let mut imu = if self.cfg.autopilot == Autopilot::ArduPilot {
+            avg.clear();
+            let mut s = self.last_imu?;
+            s.t_us = t_us;
+            s
+        } else {
+            avg.take(t_us)?
+        };
+        if self.cfg.gyro_drift {
+            imu.gyro_rps += Vector3::repeat(ardupilot_gyro_drift_rps(t_us));
+        }
+        Some(imu)
+    }
+
+    /// The int16 triplets of an IMU message: ArduPilot converts its floats with a C cast
+    /// (truncation toward zero), the others round to nearest.
+    fn int16_triplets(&self, imu: &ImuSample, mag: &MagSample) -> ([i16; 3], [i16; 3], [i16; 3]) {
+        if self.cfg.autopilot == Autopilot::ArduPilot {
+            let a = imu
+                .accel_mps2
+                .map(|v| convert::trunc_i16(v / ianav::env::atmosphere::G0_MPS2 * 1e3));
+            let g = imu.gyro_rps.map(|v| convert::trunc_i16(v * 1e3));
+            let m = mag
+                .mag_b_nt
+                .map(|v| convert::trunc_i16(v / convert::NT_PER_GAUSS * 1e3));
+            ([a.x, a.y, a.z], [g.x, g.y, g.z], [m.x, m.y, m.z])
+        } else {
+            scaled_triplets(imu, mag)
+        }
+    }
+
+    /// ArduPilot's AOA_SSA (`AP_AHRS::update_AOA_SSA`, at most every 50 ms): the vehicle's
+    /// navigation velocity minus its wind estimate, in body axes of its attitude estimate.
+    /// Below 2 m/s both are 0; the angle of attack is 0 when flying backwards.
+    fn update_aoa_ssa(&mut self, t_us: u64) {
+        let now_ms = t_us / 1000;
+        if self
+            .aoa_ssa_ms
+            .is_some_and(|last| now_ms - last < ARDUPILOT_AOA_SSA_PERIOD_MS)
+        {
+            return;
+        }
+        self.aoa_ssa_ms = Some(now_ms);
+        self.aoa_ssa_deg = Some(aoa_ssa_from_estimate_deg(
+            self.flight.estimate(),
+            &self.nav_wind_ned_mps(),
+        ));
+    }
+
+    /// The wind the vehicle's navigation estimates (its INS), or the truth's under truth
+    /// navigation.
+    pub fn nav_wind_ned_mps(&self) -> Vector3<f64> {
+        match self.flight.ins_solution() {
+            Some(sol) => sol.wind_ned_mps,
+            None => self.flight.truth_sample().wind_ned_mps,
+        }
+    }
+
+    /// Static pressure of the second barometer, Pa: the true static pressure plus its own
+    /// constant offset and uniform noise of ± [`BARO2_NOISE_M`] (converted at the local
+    /// pressure gradient `−p·g/(R·T)`).
+    fn baro2_pa(&mut self, temp_k: f64) -> f64 {
+        use ianav::env::atmosphere as atm;
+        let p_true_pa = atm::pressure_pa(self.flight.truth_sample().hp_m);
+        let pa_per_m = p_true_pa * atm::G0_MPS2 / (atm::R_JPKGK * temp_k);
+        let u: f64 = rand::RngExt::random_range(&mut self.baro2_rng, -1.0..=1.0);
+        p_true_pa + self.baro2_offset_pa + u * BARO2_NOISE_M * pa_per_m
+    }
+
+    /// Queue a STATUSTEXT as ArduPilot sends long texts: 50-byte chunks sharing an id.
+    fn statustext(&mut self, severity: apm::MavSeverity, text: &str) {
+        let bytes = text.as_bytes();
+        let chunked = bytes.len() > 50;
+        if chunked {
+            self.statustext_id = self.statustext_id.wrapping_add(1).max(1);
+        }
+        for (seq, chunk) in bytes.chunks(50).enumerate() {
+            let mut buf = [0_u8; 50];
+            buf[..chunk.len()].copy_from_slice(chunk);
+            self.queue(apm::MavMessage::STATUSTEXT(apm::STATUSTEXT_DATA {
+                severity,
+                text: buf.into(),
+                id: if chunked { self.statustext_id } else { 0 },
+                chunk_seq: u8::try_from(seq).unwrap_or(u8::MAX),
+            }));
+        }
+    }
+
     /// Message `id` now (`None` when its data does not exist yet, e.g. no vanes fitted).
     pub fn build(&mut self, id: u32, t_us: u64) -> Option<apm::MavMessage> {
         let boot_ms = (t_us / 1000) as u32;
@@ -482,11 +694,30 @@ impl Vehicle {
             }),
             apm::HIGHRES_IMU_DATA::ID => {
                 let imu = self.highres_avg.take(t_us)?;
-                apm::MavMessage::HIGHRES_IMU(highres_imu(&imu, air.as_ref()?, mag.as_ref()?))
+                let (air, mag) = (air.as_ref()?, mag.as_ref()?);
+                let mut m = highres_imu(&imu, air, mag);
+                if self.cfg.autopilot == Autopilot::Px4 {
+                    // PX4 v1.16.0 fills the pressures in Pa (the MAVLink definition says
+                    // hPa) and flags only the fields that hold new data.
+                    m.abs_pressure = air.p_pa as f32;
+                    m.diff_pressure =
+                        convert::impact_pressure_pa(air.tas_mps, air.p_pa, air.temp_k) as f32;
+                    let mut bits = 0x3F_u16;
+                    if self.highres_mag_t_us != Some(mag.t_us) {
+                        bits |= 0x1C0;
+                    }
+                    if self.highres_air_t_us != Some(air.t_us) {
+                        bits |= 0x1E00;
+                    }
+                    m.fields_updated = apm::HighresImuUpdatedFlags::from_bits_truncate(bits);
+                }
+                self.highres_mag_t_us = Some(mag.t_us);
+                self.highres_air_t_us = Some(air.t_us);
+                apm::MavMessage::HIGHRES_IMU(m)
             }
             apm::SCALED_IMU_DATA::ID => {
-                let imu = self.scaled_avg.take(t_us)?;
-                let (a, g, m) = scaled_triplets(&imu, mag.as_ref()?);
+                let imu = self.imu_for_stream(ImuStream::Scaled, t_us)?;
+                let (a, g, m) = self.int16_triplets(&imu, mag.as_ref()?);
                 apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
                     time_boot_ms: boot_ms,
                     xacc: a[0],
@@ -504,8 +735,8 @@ impl Vehicle {
             }
             apm::RAW_IMU_DATA::ID => {
                 // ArduPilot fills RAW_IMU with scaled values (mG, mrad/s, mgauss).
-                let imu = self.raw_avg.take(t_us)?;
-                let (a, g, m) = scaled_triplets(&imu, mag.as_ref()?);
+                let imu = self.imu_for_stream(ImuStream::Raw, t_us)?;
+                let (a, g, m) = self.int16_triplets(&imu, mag.as_ref()?);
                 apm::MavMessage::RAW_IMU(apm::RAW_IMU_DATA {
                     time_usec: t_us,
                     xacc: a[0],
@@ -524,24 +755,76 @@ impl Vehicle {
             apm::SCALED_PRESSURE_DATA::ID => {
                 let air = air?;
                 let qc_pa = convert::impact_pressure_pa(air.tas_mps, air.p_pa, air.temp_k);
+                let ardupilot = self.cfg.autopilot == Autopilot::ArduPilot;
                 apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
-                    time_boot_ms: (air.t_us / 1000) as u32,
+                    // ArduPilot stamps the send time (its latest baro sample), PX4 the sample.
+                    time_boot_ms: if ardupilot {
+                        boot_ms
+                    } else {
+                        (air.t_us / 1000) as u32
+                    },
                     press_abs: (air.p_pa * convert::HPA_PER_PA) as f32,
                     press_diff: (qc_pa * convert::HPA_PER_PA) as f32,
-                    temperature: convert::cdeg_c(air.temp_k),
+                    temperature: if ardupilot {
+                        convert::trunc_i16((air.temp_k - convert::CELSIUS_ZERO_K) * 100.0)
+                    } else {
+                        convert::cdeg_c(air.temp_k)
+                    },
                     temperature_press_diff: 0,
                 })
             }
-            apm::AIRSPEED_DATA::ID => apm::MavMessage::AIRSPEED(airspeed(&air?)),
-            apm::AOA_SSA_DATA::ID => {
+            apm::SCALED_PRESSURE2_DATA::ID => {
+                // ArduPilot's second barometer; PX4 SIH simulates one.
+                if self.cfg.autopilot != Autopilot::ArduPilot {
+                    return None;
+                }
                 let air = air?;
-                apm::MavMessage::AOA_SSA(apm::AOA_SSA_DATA {
-                    time_usec: air.t_us,
-                    AOA: air.aoa_rad?.to_degrees() as f32,
-                    SSA: air.aos_rad?.to_degrees() as f32,
+                let p_pa = self.baro2_pa(air.temp_k);
+                apm::MavMessage::SCALED_PRESSURE2(apm::SCALED_PRESSURE2_DATA {
+                    time_boot_ms: boot_ms,
+                    press_abs: (p_pa * convert::HPA_PER_PA) as f32,
+                    // No second airspeed sensor: ArduPilot sends 0.
+                    press_diff: 0.0,
+                    temperature: convert::trunc_i16((air.temp_k - convert::CELSIUS_ZERO_K) * 100.0),
+                    temperature_press_diff: 0,
                 })
             }
-            apm::GPS_RAW_INT_DATA::ID => apm::MavMessage::GPS_RAW_INT(gps_raw_int(&self.gnss?)),
+            apm::AIRSPEED_DATA::ID => {
+                let air = air?;
+                let mut m = airspeed(&air);
+                if self.cfg.autopilot == Autopilot::ArduPilot {
+                    // ArduPilot sends the differential pressure in Pa (the MAVLink definition
+                    // says hPa) and truncates the temperature.
+                    m.raw_press =
+                        convert::impact_pressure_pa(air.tas_mps, air.p_pa, air.temp_k) as f32;
+                    m.temperature =
+                        convert::trunc_i16((air.temp_k - convert::CELSIUS_ZERO_K) * 100.0);
+                }
+                apm::MavMessage::AIRSPEED(m)
+            }
+            apm::AOA_SSA_DATA::ID => match self.cfg.autopilot {
+                // ArduPlane's AOA_SSA is its AHRS estimate, not a vane.
+                Autopilot::ArduPilot => {
+                    let (aoa_deg, ssa_deg) = self.aoa_ssa_deg?;
+                    apm::MavMessage::AOA_SSA(apm::AOA_SSA_DATA {
+                        time_usec: t_us,
+                        AOA: aoa_deg as f32,
+                        SSA: ssa_deg as f32,
+                    })
+                }
+                Autopilot::Ideal => {
+                    let air = air?;
+                    apm::MavMessage::AOA_SSA(apm::AOA_SSA_DATA {
+                        time_usec: air.t_us,
+                        AOA: air.aoa_rad?.to_degrees() as f32,
+                        SSA: air.aos_rad?.to_degrees() as f32,
+                    })
+                }
+                Autopilot::Px4 => return None,
+            },
+            apm::GPS_RAW_INT_DATA::ID => {
+                apm::MavMessage::GPS_RAW_INT(gps_raw_int(&self.gnss?, self.cfg.autopilot))
+            }
             apm::ATTITUDE_DATA::ID => {
                 let est = self.flight.estimate();
                 let e = so3::euler_zyx(&est.q_nb);
@@ -598,7 +881,9 @@ impl Vehicle {
     fn heartbeat(&self) -> apm::HEARTBEAT_DATA {
         let (autopilot, custom_mode) = match self.cfg.autopilot {
             // PX4 AUTO.MISSION: main mode 4 in bits 16–23, sub mode 4 in bits 24–31.
-            Autopilot::Px4 => (apm::MavAutopilot::MAV_AUTOPILOT_PX4, (4 << 16) | (4 << 24)),
+            Autopilot::Px4 | Autopilot::Ideal => {
+                (apm::MavAutopilot::MAV_AUTOPILOT_PX4, (4 << 16) | (4 << 24))
+            }
             // ArduPlane AUTO = 10.
             Autopilot::ArduPilot => (apm::MavAutopilot::MAV_AUTOPILOT_ARDUPILOTMEGA, 10),
         };
@@ -731,12 +1016,44 @@ impl Vehicle {
         use apm::{MavCmd, MavResult};
         match c.command {
             MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL => {
-                let result = match self.streams.set_interval(c.param1, c.param2, now_us) {
+                let outcome = self
+                    .streams
+                    .set_interval(c.param1, c.param2, c.param3, now_us);
+                let result = match outcome {
                     IntervalOutcome::Accepted(_) => MavResult::MAV_RESULT_ACCEPTED,
-                    IntervalOutcome::Unsupported => MavResult::MAV_RESULT_UNSUPPORTED,
-                    IntervalOutcome::Denied => MavResult::MAV_RESULT_DENIED,
+                    IntervalOutcome::Denied | IntervalOutcome::TooFast => {
+                        MavResult::MAV_RESULT_DENIED
+                    }
+                    IntervalOutcome::Failed => MavResult::MAV_RESULT_FAILED,
                 };
+                // The ACK leaves at once; ArduPilot's text follows from its STATUSTEXT queue.
                 self.ack(header, c.command, result);
+                let id = c.param1 as u32;
+                match outcome {
+                    IntervalOutcome::TooFast => {
+                        self.notices.push(format!(
+                            "SET_MESSAGE_INTERVAL {id} at {:.0} µs denied: too fast for the 50 Hz loop",
+                            c.param2
+                        ));
+                        self.statustext(
+                            apm::MavSeverity::MAV_SEVERITY_INFO,
+                            &format!(
+                                "Requested rate for message ID {id} too fast. Increase SCHED_LOOP_RATE"
+                            ),
+                        );
+                    }
+                    IntervalOutcome::Denied
+                        if self.cfg.autopilot == Autopilot::ArduPilot
+                            && !super::streams::has_stream(Autopilot::ArduPilot, id) =>
+                    {
+                        // Said by SITL builds only.
+                        self.statustext(
+                            apm::MavSeverity::MAV_SEVERITY_INFO,
+                            &format!("No ap_message for mavlink id ({id})"),
+                        );
+                    }
+                    _ => {}
+                }
             }
             MavCmd::MAV_CMD_REQUEST_MESSAGE => {
                 // The ACK first, then the message (mavlink.io "Requesting messages").
@@ -887,6 +1204,33 @@ pub fn highres_imu(imu: &ImuSample, air: &AirSample, mag: &MagSample) -> apm::HI
     }
 }
 
+/// Which int16 IMU stream.
+#[derive(Debug, Clone, Copy)]
+enum ImuStream {
+    Scaled,
+    Raw,
+}
+
+/// ArduPilot's angle of attack and sideslip (degrees) from a navigation estimate and a wind
+/// estimate (`AP_AHRS::update_AOA_SSA`).
+pub fn aoa_ssa_from_estimate_deg(
+    est: &crate::control::NavEstimate,
+    wind_ned_mps: &Vector3<f64>,
+) -> (f64, f64) {
+    let v_b = est.q_nb.inverse() * (est.v_ned_mps - wind_ned_mps);
+    let speed = v_b.norm();
+    if speed < 2.0 {
+        return (0.0, 0.0);
+    }
+    let aoa_deg = if v_b.x > 0.0 {
+        (v_b.z / v_b.x).atan().to_degrees()
+    } else {
+        0.0
+    };
+    let ssa_deg = (v_b.y / speed).clamp(-1.0, 1.0).asin().to_degrees();
+    (aoa_deg, ssa_deg)
+}
+
 /// Accelerations (mG), rates (mrad/s) and field (mgauss) of the int16 IMU messages.
 fn scaled_triplets(imu: &ImuSample, mag: &MagSample) -> ([i16; 3], [i16; 3], [i16; 3]) {
     let a = imu.accel_mps2.map(convert::milli_g);
@@ -910,13 +1254,21 @@ pub fn airspeed(air: &AirSample) -> apm::AIRSPEED_DATA {
 
 /// GPS_RAW_INT of a receiver report. Without a fix: fix type NO_FIX, zero position,
 /// unknown (UINT16_MAX) DOP, speed and course, as a receiver that lost lock reports.
-pub fn gps_raw_int(report: &GnssReport) -> apm::GPS_RAW_INT_DATA {
+/// GPS_RAW_INT of a receiver report as `autopilot` sends it. ArduPilot stamps the fix with
+/// the millisecond the driver received it and reports no speed accuracy (`vel_acc` 0, as its
+/// SITL receiver); PX4 and Ideal stamp the fix's time and give all three accuracies.
+pub fn gps_raw_int(report: &GnssReport, autopilot: Autopilot) -> apm::GPS_RAW_INT_DATA {
+    let ardupilot = autopilot == Autopilot::ArduPilot;
     match report {
-        GnssReport::Fix(fix) => {
+        GnssReport::Fix { fix, rx_us } => {
             let v = fix.v_ned_mps;
             let speed_mps = v.x.hypot(v.y);
             apm::GPS_RAW_INT_DATA {
-                time_usec: fix.t_us,
+                time_usec: if ardupilot {
+                    rx_us / 1000 * 1000
+                } else {
+                    fix.t_us
+                },
                 lat: convert::deg_e7(fix.pos.lat_rad),
                 lon: convert::deg_e7(fix.pos.lon_rad),
                 alt: convert::mm(fix.pos.h_m),
@@ -930,7 +1282,11 @@ pub fn gps_raw_int(report: &GnssReport) -> apm::GPS_RAW_INT_DATA {
                 alt_ellipsoid: convert::mm(fix.pos.h_m),
                 h_acc: convert::sat_u32(fix.sigma_hor_m * 1e3),
                 v_acc: convert::sat_u32(fix.sigma_ver_m * 1e3),
-                vel_acc: convert::sat_u32(fix.sigma_vel_mps * 1e3),
+                vel_acc: if ardupilot {
+                    0
+                } else {
+                    convert::sat_u32(fix.sigma_vel_mps * 1e3)
+                },
                 hdg_acc: 0,
                 yaw: 0,
             }
