@@ -142,12 +142,13 @@ pub fn default_interval_us(autopilot: Autopilot, id: u32) -> Option<u64> {
         (Autopilot::Px4, apm::HIGHRES_IMU_DATA::ID) => hz(50),
         (Autopilot::Px4 | Autopilot::Ideal, apm::TIMESYNC_DATA::ID) => hz(10),
         (Autopilot::Px4 | Autopilot::Ideal, apm::SCALED_PRESSURE_DATA::ID) => hz(1),
-        (Autopilot::Px4 | Autopilot::Ideal, apm::ATTITUDE_DATA::ID) => hz(100),
+        (Autopilot::Px4, apm::ATTITUDE_DATA::ID) => hz(100),
         (Autopilot::Px4 | Autopilot::Ideal, apm::GLOBAL_POSITION_INT_DATA::ID) => hz(50),
         (Autopilot::Px4 | Autopilot::Ideal, apm::VFR_HUD_DATA::ID) => hz(10),
         (Autopilot::Px4 | Autopilot::Ideal, apm::GPS_RAW_INT_DATA::ID) => Some(0),
-        // Ideal: the simulator's native rates.
+        // Ideal: the simulator's native rates (and the estimate at 50 Hz).
         (Autopilot::Ideal, apm::HIGHRES_IMU_DATA::ID) => hz(100),
+        (Autopilot::Ideal, apm::ATTITUDE_DATA::ID) => hz(50),
         (Autopilot::Ideal, apm::AIRSPEED_DATA::ID | apm::AOA_SSA_DATA::ID) => hz(100),
         // ArduPlane's compiled-in stream-group rates: SRn_RAW_SENS (RAW_IMU, SCALED_PRESSURE,
         // SCALED_PRESSURE2, AIRSPEED), SRn_EXT_STAT (GPS_RAW_INT), SRn_POSITION
