@@ -11,6 +11,16 @@
 //! What it reports as its own estimate (ATTITUDE, GLOBAL_POSITION_INT, VFR_HUD) is the
 //! estimate its guidance flies on: the vehicle's own INS (the simulator's EKF, with its
 //! realistic errors), or, after GNSS loss, the companion's horizontal position (item 7).
+//!
+//! Message content follows the imitated autopilot (issue 13; `docs/SITL.md` has the
+//! side-by-side table): **ArduPilot** sends the latest IMU sample as `float × 1000` truncated
+//! to int16, with SITL's gyro drift triangle added; AOA_SSA computed as ArduPlane's AHRS does,
+//! from the vehicle's own velocity, wind and attitude estimates (not a vane, so it feeds the
+//! navigation solution back); GPS_RAW_INT stamped when the lagged fix was received, without
+//! speed accuracy; a second barometer in SCALED_PRESSURE2; AIRSPEED `raw_press` in Pa.
+//! **PX4** v1.16 sends HIGHRES_IMU box averages with its pressures in Pa and `fields_updated`
+//! only for new data, and has no AIRSPEED or AOA_SSA. **Ideal** sends every simulated sample
+//! as the MAVLink definitions say. Any stream can be delayed by a configured latency.
 
 use std::collections::VecDeque;
 
