@@ -1106,6 +1106,14 @@ async fn the_cli_flies_a_short_sitl_run_and_writes_its_log() {
             "0",
             "--autopilot",
             "ardupilot",
+            "--gyro-drift",
+            "false",
+            "--gnss-lag-ms",
+            "150",
+            "--latency-ms",
+            "20",
+            "--stream-latency",
+            "raw_imu=300",
         ])
         .args(["--connect", &format!("udpout:127.0.0.1:{port}")])
         .arg("--out")
@@ -1148,8 +1156,34 @@ async fn the_cli_flies_a_short_sitl_run_and_writes_its_log() {
         "--out",
         "--duration",
         "--seed",
+        "--gyro-drift",
+        "--gnss-lag-ms",
+        "--latency-ms",
+        "--stream-latency",
     ] {
         assert!(text.contains(opt), "{opt} missing from --help");
+    }
+    // Bad latency options are refused before anything flies.
+    for bad in [
+        ["--stream-latency", "NO_SUCH_MESSAGE=5"],
+        ["--stream-latency", "HIGHRES_IMU"],
+        ["--latency-ms", "-1"],
+        ["--gnss-lag-ms", "NaN"],
+    ] {
+        let out = std::process::Command::new(env!("CARGO_BIN_EXE_ianav-sim"))
+            .args([
+                "sitl",
+                "--connect",
+                "udpout:127.0.0.1:9",
+                "--duration",
+                "1",
+                "--speed",
+                "0",
+            ])
+            .args(bad)
+            .output()
+            .unwrap();
+        assert!(!out.status.success(), "{bad:?} accepted");
     }
 }
 
