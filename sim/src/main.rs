@@ -202,6 +202,11 @@ struct SitlArgs {
     /// (default: 100 for ardupilot, 0 otherwise).
     #[arg(long)]
     gnss_lag_ms: Option<f64>,
+    /// ardupilot: from this mission time (s) on, flag the airspeed sensor unhealthy (AIRSPEED
+    /// UNHEALTHY, VFR_HUD airspeed = the autopilot's own estimate), as ArduPlane does when it
+    /// stops trusting it.
+    #[arg(long)]
+    airspeed_unhealthy_from: Option<f64>,
     /// Transport and processing latency of every stream, ms of simulated time.
     #[arg(long, default_value_t = 0.0)]
     latency_ms: f64,
@@ -650,6 +655,13 @@ fn sitl(args: &SitlArgs) -> Result<()> {
     .with_latency_us(option_ms_to_us("--latency-ms", args.latency_ms)?);
     if let Some(on) = args.gyro_drift {
         vehicle.gyro_drift = on;
+    }
+    if let Some(t_s) = args.airspeed_unhealthy_from {
+        let boot_s = setup.scenario.warmup_s + t_s;
+        if !(boot_s.is_finite() && boot_s >= 0.0) {
+            bail!("--airspeed-unhealthy-from must be a mission time in seconds, got {t_s}");
+        }
+        vehicle.airspeed_unhealthy_from_us = Some((boot_s * 1e6).round() as u64);
     }
     if let Some(ms) = args.gnss_lag_ms {
         vehicle.gnss_lag_us = option_ms_to_us("--gnss-lag-ms", ms)?;

@@ -1297,3 +1297,58 @@ async fn malformed_and_hostile_input_is_refused_or_skipped_without_stopping_the_
     assert_eq!(summary.vehicle.estimates_refused, 3);
     assert!(summary.mission_s >= 3.0);
 }
+
+#[test]
+fn ardupilot_vfr_hud_airspeed_becomes_its_own_estimate_when_the_sensor_is_unhealthy() {
+    let setup = short_setup(2.0, 100.0, 8.0);
+    let cfg = VehicleConfig {
+        fly_on_estimates: false,
+        airspeed_unhealthy_from_us: Some(6_000_000),
+        ..VehicleConfig::for_autopilot(Autopilot::ArduPilot)
+    };
+    let mut eas: BTreeMap<u64, f64> = BTreeMap::new();
+    let out = drive(
+        &setup,
+        cfg,
+        &[
+            (apm::VFR_HUD_DATA::ID, 100_000.0),
+            (apm::AIRSPEED_DATA::ID, 100_000.0),
+        ],
+        |v| {
+            eas.insert(v.t_us(), v.ahrs_eas_mps());
+        },
+    );
+    let mut sensor: BTreeMap<u64, f32> = BTreeMap::new();
+    let (mut healthy, mut unhealthy) = (0, 0);
+    for (t, m) in &out {
+        match m {
+            apm::MavMessage::AIRSPEED(a) => {
+                let flags = if *t >= 6_000_000 {
+                    apm::AirspeedSensorFlags::AIRSPEED_SENSOR_UNHEALTHY
+                } else {
+                    apm::AirspeedSensorFlags::AIRSPEED_SENSOR_USING
+                };
+                assert_eq!(a.flags, flags, "at {t} µs");
+                sensor.insert(*t, a.airspeed);
+            }
+            apm::MavMessage::VFR_HUD(h) if *t >= 6_000_000 => {
+                // The estimate, which differs from the sensor by its own errors.
+                assert!(
+                    close(h.airspeed, eas[t], 1e-6),
+                    "{} vs {}",
+                    h.airspeed,
+                    eas[t]
+                );
+                unhealthy += 1;
+            }
+            apm::MavMessage::VFR_HUD(h) => {
+                if let Some(s) = sensor.get(t) {
+                    assert_eq!(h.airspeed, *s);
+                    healthy += 1;
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(healthy > 30 && unhealthy > 30, "{healthy} {unhealthy}");
+}

@@ -81,6 +81,11 @@ pub struct VehicleConfig {
     /// GNSS receiver lag, µs: a fix of the truth at `t` reaches the autopilot, and its
     /// GPS_RAW_INT, at `t + lag` and is stamped with that reception time.
     pub gnss_lag_us: u64,
+    /// ArduPilot: from this boot time on (µs) the airspeed sensor is flagged unhealthy, as
+    /// ArduPlane does when it stops trusting it: AIRSPEED carries the UNHEALTHY flag (not
+    /// USING) and VFR_HUD's airspeed becomes the AHRS estimate (`airspeed_estimate`, the
+    /// equivalent airspeed of the vehicle's own navigation estimate). `None`: always healthy.
+    pub airspeed_unhealthy_from_us: Option<u64>,
     /// Transport and processing latency of each stream (indexed like
     /// [`super::streams::STREAMABLE`]), µs of vehicle time: a message built at `t` leaves at
     /// `t + latency` (on the 10 ms sensor grid), with its content and stamps of `t`.
@@ -100,6 +105,7 @@ impl VehicleConfig {
             estimate_timeout_us: 1_000_000,
             gyro_drift: ardupilot,
             gnss_lag_us: if ardupilot { ARDUPILOT_GNSS_LAG_US } else { 0 },
+            airspeed_unhealthy_from_us: None,
             latency_us: [0; STREAMABLE.len()],
         }
     }
@@ -641,6 +647,30 @@ impl Vehicle {
         ));
     }
 
+    /// Whether ArduPilot's airspeed sensor is flagged unhealthy at `t_us`.
+    fn airspeed_unhealthy(&self, t_us: u64) -> bool {
+        self.cfg.autopilot == Autopilot::ArduPilot
+            && self
+                .cfg
+                .airspeed_unhealthy_from_us
+                .is_some_and(|t0| t_us >= t0)
+    }
+
+    /// ArduPlane's AHRS airspeed estimate (equivalent airspeed) from the vehicle's navigation
+    /// estimate: its true airspeed × √(ρ/ρ₀), at its pressure altitude and its INS's outside
+    /// air temperature (the ISA temperature under truth navigation).
+    pub fn ahrs_eas_mps(&self) -> f64 {
+        use ianav::env::atmosphere as atm;
+        let est = self.flight.estimate();
+        let temp_k = self
+            .flight
+            .ins_solution()
+            .map_or_else(|| atm::isa_temperature_k(est.hp_m), |s| s.temp_k);
+        let rho = atm::density_kgpm3(atm::pressure_pa(est.hp_m), temp_k);
+        let rho0 = atm::density_kgpm3(atm::P0_PA, atm::T0_K);
+        est.tas_mps * (rho / rho0).sqrt()
+    }
+
     /// The wind the vehicle's navigation estimates (its INS), or the truth's under truth
     /// navigation.
     pub fn nav_wind_ned_mps(&self) -> Vector3<f64> {
@@ -809,6 +839,9 @@ impl Vehicle {
                         convert::impact_pressure_pa(air.tas_mps, air.p_pa, air.temp_k) as f32;
                     m.temperature =
                         convert::trunc_i16((air.temp_k - convert::CELSIUS_ZERO_K) * 100.0);
+                    if self.airspeed_unhealthy(t_us) {
+                        m.flags = apm::AirspeedSensorFlags::AIRSPEED_SENSOR_UNHEALTHY;
+                    }
                 }
                 apm::MavMessage::AIRSPEED(m)
             }
@@ -867,11 +900,15 @@ impl Vehicle {
             apm::VFR_HUD_DATA::ID => {
                 let est = self.flight.estimate();
                 let air = air?;
-                let ias_mps = convert::cas_mps(convert::impact_pressure_pa(
-                    air.tas_mps,
-                    air.p_pa,
-                    air.temp_k,
-                ));
+                let ias_mps = if self.airspeed_unhealthy(t_us) {
+                    self.ahrs_eas_mps()
+                } else {
+                    convert::cas_mps(convert::impact_pressure_pa(
+                        air.tas_mps,
+                        air.p_pa,
+                        air.temp_k,
+                    ))
+                };
                 let yaw_deg = so3::euler_zyx(&est.q_nb).x.to_degrees().rem_euclid(360.0);
                 let throttle = self.flight.truth_sample().controls.throttle;
                 apm::MavMessage::VFR_HUD(apm::VFR_HUD_DATA {
@@ -1262,9 +1299,9 @@ pub fn airspeed(air: &AirSample) -> apm::AIRSPEED_DATA {
     }
 }
 
-/// GPS_RAW_INT of a receiver report. Without a fix: fix type NO_FIX, zero position,
-/// unknown (UINT16_MAX) DOP, speed and course, as a receiver that lost lock reports.
-/// GPS_RAW_INT of a receiver report as `autopilot` sends it. ArduPilot stamps the fix with
+/// GPS_RAW_INT of a receiver report as `autopilot` sends it. Without a fix: fix type
+/// NO_FIX, zero position, unknown (UINT16_MAX) DOP, speed and course, as a receiver that lost
+/// lock reports. ArduPilot stamps the fix with
 /// the millisecond the driver received it and reports no speed accuracy (`vel_acc` 0, as its
 /// SITL receiver); PX4 and Ideal stamp the fix's time and give all three accuracies.
 pub fn gps_raw_int(report: &GnssReport, autopilot: Autopilot) -> apm::GPS_RAW_INT_DATA {
