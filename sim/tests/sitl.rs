@@ -1352,3 +1352,54 @@ fn ardupilot_vfr_hud_airspeed_becomes_its_own_estimate_when_the_sensor_is_unheal
     }
     assert!(healthy > 30 && unhealthy > 30, "{healthy} {unhealthy}");
 }
+
+#[test]
+fn ardupilot_repeats_the_last_fix_for_4_s_after_the_receiver_stops_then_reports_no_gps() {
+    let setup = short_setup(2.0, 4.0, 10.0);
+    let tw = twin(&setup);
+    let cfg = VehicleConfig {
+        fly_on_estimates: false,
+        ..VehicleConfig::for_autopilot(Autopilot::ArduPilot)
+    };
+    let out = drive(
+        &setup,
+        cfg,
+        &[(apm::GPS_RAW_INT_DATA::ID, 200_000.0)],
+        |_| {},
+    );
+    let last_fix_rx_us = tw.loss_us + 100_000;
+    let (mut repeats, mut no_gps) = (0, 0);
+    for (t, m) in &out {
+        let apm::MavMessage::GPS_RAW_INT(g) = m else {
+            continue;
+        };
+        if *t <= tw.loss_us {
+            continue;
+        }
+        // The last fix's reception time throughout.
+        assert_eq!(g.time_usec, last_fix_rx_us, "at {t} µs");
+        if *t <= last_fix_rx_us + 4_000_000 {
+            assert_eq!(
+                g.fix_type,
+                apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
+                "at {t} µs"
+            );
+            assert_eq!(
+                g.lat,
+                sitl::convert::deg_e7(tw.gnss[&tw.loss_us].pos.lat_rad)
+            );
+            repeats += 1;
+        } else {
+            assert_eq!(
+                g.fix_type,
+                apm::GpsFixType::GPS_FIX_TYPE_NO_GPS,
+                "at {t} µs"
+            );
+            assert_eq!((g.lat, g.lon, g.satellites_visible), (0, 0, 0));
+            no_gps += 1;
+        }
+    }
+    // 4.1 s of repeats at 5 Hz, then NO_GPS until the end (12 s of flight).
+    assert!((20..=21).contains(&repeats), "{repeats}");
+    assert!(no_gps >= 9, "{no_gps}");
+}

@@ -53,6 +53,8 @@ pub const GYRO_DRIFT_RPS_PER_MIN: f64 = 0.05 * std::f64::consts::PI / 180.0;
 pub const GYRO_DRIFT_HALF_PERIOD_MIN: f64 = 5.0;
 /// ArduPilot SITL's GNSS receiver lag, µs (`SIM_GPS1_LAG_MS` 100).
 pub const ARDUPILOT_GNSS_LAG_US: u64 = 100_000;
+/// ArduPilot's GNSS driver timeout, µs (`GPS_TIMEOUT_MS`).
+pub const ARDUPILOT_GPS_TIMEOUT_US: u64 = 4_000_000;
 /// ArduPilot computes AOA_SSA at most every 50 ms (`AP_AHRS::update_AOA_SSA`).
 pub const ARDUPILOT_AOA_SSA_PERIOD_MS: u64 = 50;
 /// Constant offset of the second barometer, 1-σ over seeds, Pa (our assumption: a different
@@ -150,6 +152,11 @@ pub enum GnssReport {
     NoFix {
         /// Report time, µs.
         t_us: u64,
+    },
+    /// ArduPilot after its receiver went silent: no GPS, the last fix's time kept.
+    NoGps {
+        /// Reception of the last fix, µs.
+        last_fix_rx_us: u64,
     },
 }
 
@@ -492,7 +499,20 @@ impl Vehicle {
             self.pending_fixes.pop_front();
             self.on_fix(fix, t_us);
         }
-        if t_us > loss_us && t_us.is_multiple_of(self.gnss_period_us) {
+        if self.cfg.autopilot == Autopilot::ArduPilot {
+            // ArduPilot SITL with its receiver disabled: no more messages; the driver keeps
+            // the last fix for GPS_TIMEOUT_MS (4 s), then clears its state to NO_GPS while
+            // GPS_RAW_INT keeps the time of the last fix.
+            if let Some(GnssReport::Fix { rx_us, .. }) = self.gnss
+                && t_us > loss_us
+                && t_us > rx_us + ARDUPILOT_GPS_TIMEOUT_US
+            {
+                self.gnss = Some(GnssReport::NoGps {
+                    last_fix_rx_us: rx_us,
+                });
+                self.gnss_fresh = true;
+            }
+        } else if t_us > loss_us && t_us.is_multiple_of(self.gnss_period_us) {
             // The receiver keeps reporting, without a fix.
             self.gnss = Some(GnssReport::NoFix { t_us });
             self.gnss_fresh = true;
@@ -1338,6 +1358,13 @@ pub fn gps_raw_int(report: &GnssReport, autopilot: Autopilot) -> apm::GPS_RAW_IN
                 yaw: 0,
             }
         }
+        GnssReport::NoGps { last_fix_rx_us } => apm::GPS_RAW_INT_DATA {
+            time_usec: last_fix_rx_us / 1000 * 1000,
+            fix_type: apm::GpsFixType::GPS_FIX_TYPE_NO_GPS,
+            eph: u16::MAX,
+            epv: u16::MAX,
+            ..Default::default()
+        },
         GnssReport::NoFix { t_us } => apm::GPS_RAW_INT_DATA {
             time_usec: *t_us,
             lat: 0,
