@@ -17,7 +17,7 @@
 //!   GLOBAL_POSITION_INT 50 Hz, GPS_RAW_INT on each fix, TIMESYNC 10 Hz, SCALED_PRESSURE and
 //!   SYSTEM_TIME 1 Hz, VFR_HUD 10 Hz). Every request for a message it has a stream for is
 //!   ACCEPTED (any negative interval stops it, 0 restores the default); an id without a stream
-//!   (AIRSPEED and AOA_SSA have none in v1.16.0), HEARTBEAT, or a non-zero param3 gives
+//!   (AIRSPEED, AOA_SSA and RAW_IMU have none in v1.16.0), HEARTBEAT, or a non-zero param3 gives
 //!   FAILED. Streams run on the sensor instants with an accumulating deadline; a stream only
 //!   sends new data, so an interval shorter than the 10 ms sensor period gives 100 Hz.
 //! - **Ideal** (not an autopilot; PX4 identity): every simulated sample at its native rate
@@ -119,14 +119,17 @@ pub fn stream_index_by_name(name: &str) -> Option<usize> {
         .position(|n| n.eq_ignore_ascii_case(name))
 }
 
-/// Whether `autopilot` has a stream for message `id` at all (PX4 v1.16.0 has no AIRSPEED or
-/// AOA_SSA stream; ArduPilot has no HIGHRES_IMU in a default ArduPlane build).
+/// Whether `autopilot` has a stream for message `id` at all (PX4 v1.16.0 has no AIRSPEED,
+/// AOA_SSA or RAW_IMU stream; ArduPilot has no HIGHRES_IMU in a default ArduPlane build).
 pub fn has_stream(autopilot: Autopilot, id: u32) -> bool {
     if stream_index(id).is_none() {
         return false;
     }
     match autopilot {
-        Autopilot::Px4 => !matches!(id, apm::AIRSPEED_DATA::ID | apm::AOA_SSA_DATA::ID),
+        Autopilot::Px4 => !matches!(
+            id,
+            apm::AIRSPEED_DATA::ID | apm::AOA_SSA_DATA::ID | apm::RAW_IMU_DATA::ID
+        ),
         Autopilot::ArduPilot => !matches!(id, apm::HIGHRES_IMU_DATA::ID | apm::TIMESYNC_DATA::ID),
         Autopilot::Ideal => true,
     }
@@ -420,8 +423,13 @@ mod tests {
             s.set_interval(id as f32, 0.0, 0.0, 31_000_000),
             IntervalOutcome::Accepted(Some(20_000))
         );
-        // No stream for AIRSPEED or AOA_SSA in v1.16.0, nor for unknown ids: FAILED.
-        for id in [apm::AIRSPEED_DATA::ID, apm::AOA_SSA_DATA::ID, 9999] {
+        // No stream for AIRSPEED, AOA_SSA or RAW_IMU in v1.16.0, nor for unknown ids: FAILED.
+        for id in [
+            apm::AIRSPEED_DATA::ID,
+            apm::AOA_SSA_DATA::ID,
+            apm::RAW_IMU_DATA::ID,
+            9999,
+        ] {
             assert_eq!(
                 s.set_interval(id as f32, 1e4, 0.0, 0),
                 IntervalOutcome::Failed
@@ -457,24 +465,28 @@ mod tests {
             );
         }
         assert_eq!(s.interval_us(id), None, "a denied request changes nothing");
-        // 25 ms is accepted and delivered at 40 Hz on average from the 20 ms loop.
+        // 25 ms is accepted and delivered at 40 Hz on average from the 20 ms loop: 4 per
+        // 100 ms (20 or 40 ms apart). The first is due 25 ms after the request.
         assert_eq!(
             s.set_interval(id as f32, 25_000.0, 0.0, 20_000_000),
             IntervalOutcome::Accepted(Some(25_000))
         );
-        assert_eq!(count_from(&mut s, id, 20, 10), 400);
+        assert_eq!(count_from(&mut s, id, 20, 1), 39);
+        assert_eq!(count_from(&mut s, id, 21, 10), 400);
         // 30 Hz (33,333 µs → 33 ms): 30.3 Hz on average, never two messages per tick.
-        s.set_interval(id as f32, 33_333.0, 0.0, 30_000_000);
-        let n = count_from(&mut s, id, 30, 10);
+        s.set_interval(id as f32, 33_333.0, 0.0, 31_000_000);
+        count_from(&mut s, id, 31, 1);
+        let n = count_from(&mut s, id, 32, 10);
         assert!((302..=304).contains(&n), "{n}");
         // 10 Hz is met exactly.
-        s.set_interval(id as f32, 100_000.0, 0.0, 40_000_000);
-        assert_eq!(count_from(&mut s, id, 40, 10), 100);
+        s.set_interval(id as f32, 100_000.0, 0.0, 42_000_000);
+        count_from(&mut s, id, 42, 1);
+        assert_eq!(count_from(&mut s, id, 43, 10), 100);
         // Off, and back to the default (off for SCALED_IMU).
-        s.set_interval(id as f32, -1.0, 0.0, 50_000_000);
-        assert_eq!(count_from(&mut s, id, 50, 1), 0);
+        s.set_interval(id as f32, -1.0, 0.0, 53_000_000);
+        assert_eq!(count_from(&mut s, id, 53, 1), 0);
         assert_eq!(
-            s.set_interval(id as f32, 0.0, 0.0, 51_000_000),
+            s.set_interval(id as f32, 0.0, 0.0, 54_000_000),
             IntervalOutcome::Accepted(None)
         );
         // Invalid: interval below −1, param3, no such message in ArduPlane.
