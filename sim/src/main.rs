@@ -195,7 +195,7 @@ struct SitlArgs {
     #[arg(long, default_value_t = 1.0)]
     estimate_timeout: f64,
     /// Add ArduPilot SITL's gyro drift triangle (0.05°/s per minute, up to 0.25°/s) to the
-    /// gyro rates sent (default: on for ardupilot, off otherwise).
+    /// gyro rates sent (default: off).
     #[arg(long)]
     gyro_drift: Option<bool>,
     /// GNSS receiver lag, ms: GPS_RAW_INT reports a fix this much after it was taken

@@ -510,9 +510,9 @@ fn ardupilot_messages_carry_arduplane_semantics() {
     let tw = twin(&setup);
     let cfg = VehicleConfig {
         fly_on_estimates: false,
+        gyro_drift: true,
         ..VehicleConfig::for_autopilot(Autopilot::ArduPilot)
     };
-    assert!(cfg.gyro_drift);
     assert_eq!(cfg.gnss_lag_us, 100_000);
     // Per instant: the angles derived from the vehicle's estimate and the true ones, deg.
     let mut from_estimate: BTreeMap<u64, (f64, f64)> = BTreeMap::new();
