@@ -621,6 +621,20 @@ fn assert_beside_real_autopilot(
 ) -> Compared {
     let c = &run.counters;
     eprintln!("{:?}\n{:?}", c.input, c.nav);
+    // What the daemon said, at the time of validity of its last ODOMETRY before (diagnosis).
+    let mut last_odo_s = f64::NAN;
+    for m in &run.daemon_msgs {
+        match m {
+            apm::MavMessage::ODOMETRY(o) => {
+                last_odo_s = o.time_usec as f64 * 1e-6 - setup.scenario.warmup_s;
+            }
+            apm::MavMessage::STATUSTEXT(t) => eprintln!(
+                "daemon after {last_odo_s:.2} s: {}",
+                String::from_utf8_lossy(&t.text.to_vec()).trim_end_matches('\0')
+            ),
+            _ => {}
+        }
+    }
     assert_eq!(run.stream_defects, (0, 0, 0));
     let s = &run.summary;
     assert_eq!((s.send_dropped, s.send_errors), (0, 0), "{s:?}");
