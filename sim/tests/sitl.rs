@@ -1354,7 +1354,7 @@ fn ardupilot_vfr_hud_airspeed_becomes_its_own_estimate_when_the_sensor_is_unheal
 }
 
 #[test]
-fn ardupilot_repeats_the_last_fix_for_4_s_after_the_receiver_stops_then_reports_no_gps() {
+fn ardupilot_reports_no_fix_with_the_last_fix_time_after_the_loss() {
     let setup = short_setup(2.0, 4.0, 10.0);
     let tw = twin(&setup);
     let cfg = VehicleConfig {
@@ -1368,7 +1368,7 @@ fn ardupilot_repeats_the_last_fix_for_4_s_after_the_receiver_stops_then_reports_
         |_| {},
     );
     let last_fix_rx_us = tw.loss_us + 100_000;
-    let (mut repeats, mut no_gps) = (0, 0);
+    let (mut last_fix_repeats, mut no_fix) = (0, 0);
     for (t, m) in &out {
         let apm::MavMessage::GPS_RAW_INT(g) = m else {
             continue;
@@ -1378,7 +1378,8 @@ fn ardupilot_repeats_the_last_fix_for_4_s_after_the_receiver_stops_then_reports_
         }
         // The last fix's reception time throughout.
         assert_eq!(g.time_usec, last_fix_rx_us, "at {t} µs");
-        if *t <= last_fix_rx_us + 4_000_000 {
+        if *t < tw.loss_us + 1_100_000 {
+            // Until the receiver's next report arrives, the last fix.
             assert_eq!(
                 g.fix_type,
                 apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
@@ -1388,18 +1389,18 @@ fn ardupilot_repeats_the_last_fix_for_4_s_after_the_receiver_stops_then_reports_
                 g.lat,
                 sitl::convert::deg_e7(tw.gnss[&tw.loss_us].pos.lat_rad)
             );
-            repeats += 1;
+            last_fix_repeats += 1;
         } else {
             assert_eq!(
                 g.fix_type,
-                apm::GpsFixType::GPS_FIX_TYPE_NO_GPS,
+                apm::GpsFixType::GPS_FIX_TYPE_NO_FIX,
                 "at {t} µs"
             );
-            assert_eq!((g.lat, g.lon, g.satellites_visible), (0, 0, 0));
-            no_gps += 1;
+            assert_eq!((g.lat, g.lon, g.satellites_visible), (0, 0, 3));
+            no_fix += 1;
         }
     }
-    // 4.1 s of repeats at 5 Hz, then NO_GPS until the end (12 s of flight).
-    assert!((20..=21).contains(&repeats), "{repeats}");
-    assert!(no_gps >= 9, "{no_gps}");
+    // 1 s of repeats at 5 Hz, then NO_FIX until the end (12 s of flight).
+    assert!((4..=5).contains(&last_fix_repeats), "{last_fix_repeats}");
+    assert!(no_fix >= 25, "{no_fix}");
 }

@@ -53,8 +53,9 @@ pub const GYRO_DRIFT_RPS_PER_MIN: f64 = 0.05 * std::f64::consts::PI / 180.0;
 pub const GYRO_DRIFT_HALF_PERIOD_MIN: f64 = 5.0;
 /// ArduPilot SITL's GNSS receiver lag, µs (`SIM_GPS1_LAG_MS` 100).
 pub const ARDUPILOT_GNSS_LAG_US: u64 = 100_000;
-/// ArduPilot's GNSS driver timeout, µs (`GPS_TIMEOUT_MS`).
-pub const ARDUPILOT_GPS_TIMEOUT_US: u64 = 4_000_000;
+/// Satellites ArduPilot SITL's first receiver reports once disabled (it "starts sending back
+/// 3 satellites", `SIM_GPS.cpp`).
+pub const ARDUPILOT_SATELLITES_WITHOUT_LOCK: u8 = 3;
 /// ArduPilot computes AOA_SSA at most every 50 ms (`AP_AHRS::update_AOA_SSA`).
 pub const ARDUPILOT_AOA_SSA_PERIOD_MS: u64 = 50;
 /// Constant offset of the second barometer, 1-σ over seeds, Pa (our assumption: a different
@@ -154,7 +155,7 @@ pub enum GnssReport {
         /// Report time, µs.
         t_us: u64,
     },
-    /// ArduPilot after its receiver went silent: no GPS, the last fix's time kept.
+    /// ArduPilot after its receiver lost lock: no fix, the last fix's time kept.
     NoGps {
         /// Reception of the last fix, µs.
         last_fix_rx_us: u64,
@@ -501,12 +502,19 @@ impl Vehicle {
             self.on_fix(fix, t_us);
         }
         if self.cfg.autopilot == Autopilot::ArduPilot {
-            // ArduPilot SITL with its receiver disabled: no more messages; the driver keeps
-            // the last fix for GPS_TIMEOUT_MS (4 s), then clears its state to NO_GPS while
-            // GPS_RAW_INT keeps the time of the last fix.
-            if let Some(GnssReport::Fix { rx_us, .. }) = self.gnss
-                && t_us > loss_us
-                && t_us > rx_us + ARDUPILOT_GPS_TIMEOUT_US
+            // ArduPilot SITL with GPS 1 disabled keeps sending, without lock and with 3
+            // satellites; the driver reports NO_FIX and GPS_RAW_INT keeps the time of the last
+            // fix (`last_fix_time_ms` only moves with a fix).
+            let rx_us = match self.gnss {
+                Some(GnssReport::Fix { rx_us, .. }) => Some(rx_us),
+                Some(GnssReport::NoGps { last_fix_rx_us }) => Some(last_fix_rx_us),
+                _ => None,
+            };
+            // The receiver's reports after the loss, received after its lag.
+            let lag_us = self.cfg.gnss_lag_us;
+            if let Some(rx_us) = rx_us
+                && t_us > loss_us + lag_us
+                && (t_us - lag_us).is_multiple_of(self.gnss_period_us)
             {
                 self.gnss = Some(GnssReport::NoGps {
                     last_fix_rx_us: rx_us,
@@ -1359,11 +1367,15 @@ pub fn gps_raw_int(report: &GnssReport, autopilot: Autopilot) -> apm::GPS_RAW_IN
                 yaw: 0,
             }
         }
+        // Position 0: what ArduPilot's driver keeps without lock was not measured.
         GnssReport::NoGps { last_fix_rx_us } => apm::GPS_RAW_INT_DATA {
             time_usec: last_fix_rx_us / 1000 * 1000,
-            fix_type: apm::GpsFixType::GPS_FIX_TYPE_NO_GPS,
+            fix_type: apm::GpsFixType::GPS_FIX_TYPE_NO_FIX,
+            satellites_visible: ARDUPILOT_SATELLITES_WITHOUT_LOCK,
             eph: u16::MAX,
             epv: u16::MAX,
+            vel: u16::MAX,
+            cog: u16::MAX,
             ..Default::default()
         },
         GnssReport::NoFix { t_us } => apm::GPS_RAW_INT_DATA {
