@@ -5,7 +5,9 @@
 //! the horizontal position error into the integrals of those terms. Also prints the mean
 //! velocity and horizontal-position NEES over the runs.
 //!
-//! `cargo run -p ianav-sim --profile ci --example ins_denied_budget -- [runs] [q_e_gyr]`
+//! `cargo run -p ianav-sim --profile ci --example ins_denied_budget -- [runs] [q_e_gyr] [novane]`
+//! (`q_e_gyr`: the attitude filter's gyro-error Q̃ per step, `-` for the default; `novane`:
+//! fly without the AoA/AoS vanes).
 
 use ianav::ins::InsSolution;
 use ianav::math::wgs84;
@@ -106,13 +108,21 @@ impl FlightObserver for Budget {
 fn main() -> anyhow::Result<()> {
     let args: Vec<String> = std::env::args().collect();
     let runs: u64 = args.get(1).map_or(Ok(20), |s| s.parse())?;
-    let q_e_gyr: Option<f64> = args.get(2).map(|s| s.parse()).transpose()?;
+    let q_e_gyr: Option<f64> = args
+        .get(2)
+        .filter(|s| s.as_str() != "-")
+        .map(|s| s.parse())
+        .transpose()?;
+    let no_vane = args.get(3).is_some_and(|s| s == "novane");
     let mut all = Vec::new();
     for seed in 1..=runs {
         let mut setup = FlightSetup::builtin(2)?;
         setup.navigation = NavigationMode::Ins;
         if let Some(q) = q_e_gyr {
             setup.ins.attitude.q_e_gyr_rad2ps2 = q;
+        }
+        if no_vane {
+            setup.sensors.air.vanes_enabled = false;
         }
         let mut flight = Flight::new(&setup, seed)?;
         let mut b = Budget::default();

@@ -895,4 +895,153 @@ mod tests {
         // Second-order terms ≈ |d|²/R ≈ 1e4/6.4e6 ≈ 1.6e-3 m.
         assert!((back - d).norm() < 2e-3, "{back}");
     }
+
+    /// Exponentially correlated (first-order Gauss–Markov) gusts along the body axes fed as
+    /// the raw wind: the measured per-axis variance is the gusts' σ².
+    #[test]
+    fn gust_intensity_is_measured_from_the_raw_wind() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut normal = move || {
+            let u1: f64 = 1.0 - rng.random::<f64>();
+            let u2: f64 = rng.random::<f64>();
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let cfg = PositionFilterConfig::default();
+        let scale = cfg.turbulence_integral_scale_m;
+        let (tas, dt, t_end) = (30.0, 0.05, 20_000.0);
+        let sigma = Vector3::new(0.9, 0.6, 0.5);
+        let q_nb = so3::from_euler_zyx(2.0, 0.1, 0.3);
+        let c_nb = q_nb.to_rotation_matrix().into_inner();
+        let w0 = Vector3::new(5.0, -3.0, 0.0);
+        let mut est = GnssPhaseEstimates::new(
+            cfg.lpf_time_constant_s,
+            scale,
+            &q_nb,
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            w0,
+            Matrix3::identity() * 0.01,
+        );
+        let a = Vector3::from_fn(|i, _| (-dt * tas / scale[i]).exp());
+        let mut g = Vector3::from_fn(|i, _| sigma[i] * normal());
+        let steps = (t_end / dt) as usize;
+        for _ in 0..steps {
+            for i in 0..3 {
+                g[i] = a[i] * g[i] + sigma[i] * (1.0 - a[i] * a[i]).sqrt() * normal();
+            }
+            let wind = w0 + c_nb * g;
+            est.step(
+                dt,
+                &q_nb,
+                tas,
+                2000.0,
+                1.0,
+                2100.0,
+                1.0,
+                5.0,
+                wind,
+                Matrix3::identity() * 0.01,
+            );
+        }
+        let (var, held) = est.gust(tas);
+        for i in 0..3 {
+            let tau_c = scale[i] / tas;
+            // Time average of a squared Gauss–Markov process: relative σ √(2 τ_c / T);
+            // 5 of them.
+            let tol = 5.0 * (2.0 * tau_c / t_end).sqrt();
+            let rel = var[i] / (sigma[i] * sigma[i]) - 1.0;
+            assert!(
+                rel.abs() < tol,
+                "axis {i}: {} vs {} ({rel:+.3}, tol {tol:.3})",
+                var[i],
+                sigma[i] * sigma[i]
+            );
+            let expect = tau_c / (tau_c + cfg.lpf_time_constant_s);
+            assert!((held[i] - expect).abs() < 1e-12, "{i}");
+        }
+    }
+
+    /// With only the gust uncertain, the dead-reckoning position variance along a straight
+    /// leg is that of an integrated Gauss–Markov process, `2σ²τ (T − τ (1 − e^{−T/τ}))`, and
+    /// the velocity variance stays σ².
+    #[test]
+    fn dead_reckoning_integrates_the_gust_as_a_gauss_markov_process() {
+        let cfg = PositionFilterConfig {
+            q_position_m2: 0.0,
+            ..PositionFilterConfig::default()
+        };
+        let mut f = GnssFilter::new(&cfg, &init());
+        f.p = SMatrix::zeros();
+        let est = GnssPhaseEstimates::new(
+            cfg.lpf_time_constant_s,
+            cfg.turbulence_integral_scale_m,
+            &UnitQuaternion::identity(),
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            Vector3::zeros(),
+            Matrix3::zeros(),
+        );
+        let air_cfg = AirDataFilterConfig {
+            tas_bias_sigma_mps: 0.0,
+            aoa_bias_sigma_deg: 0.0,
+            aos_bias_sigma_deg: 0.0,
+            ..AirDataFilterConfig::default()
+        };
+        let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
+        air_x[air_data::TAS] = 30.0;
+        let mut nav = DeniedNav::new(&cfg, &air_cfg, &air_x, &f, &est);
+        let sigma2 = Vector3::new(0.81, 0.36, 0.25);
+        nav.gust_var_b = sigma2;
+        nav.p_dr = SMatrix::zeros();
+        nav.p_dr
+            .fixed_view_mut::<3, 3>(DR_G, DR_G)
+            .copy_from(&Matrix3::from_diagonal(&sigma2));
+        // Heading 90°: body x is east, body y is south.
+        let q_nb = so3::from_euler_zyx(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
+        let (dt, t_end) = (0.01, 200.0);
+        for _ in 0..(t_end / dt) as usize {
+            nav.propagate(
+                &cfg,
+                &q_nb,
+                30.0,
+                &Vector3::new(0.0, 30.0, 0.0),
+                &Matrix3::zeros(),
+                2000.0,
+                5.0,
+                &nalgebra::Matrix2::identity(),
+                dt,
+                1,
+                1.0,
+            );
+        }
+        let p = nav.position_cov();
+        let gm = |s2: f64, tau: f64| 2.0 * s2 * tau * (t_end - tau * (1.0 - (-t_end / tau).exp()));
+        let scale = cfg.turbulence_integral_scale_m;
+        let east = gm(sigma2.x, scale[0] / 30.0);
+        let north = gm(sigma2.y, scale[1] / 30.0);
+        // Discretisation: the position is integrated with the start-of-step gust, a relative
+        // error of order Δt/τ ≤ 0.01/4.4.
+        assert!(
+            (p[(1, 1)] / east - 1.0).abs() < 5e-3,
+            "{} {east}",
+            p[(1, 1)]
+        );
+        assert!(
+            (p[(0, 0)] / north - 1.0).abs() < 5e-3,
+            "{} {north}",
+            p[(0, 0)]
+        );
+        assert!(p[(0, 1)].abs() < 1e-9 * east);
+        let v = nav.velocity_cov();
+        assert!((v[(1, 1)] / sigma2.x - 1.0).abs() < 1e-9, "{}", v[(1, 1)]);
+        assert!((v[(0, 0)] / sigma2.y - 1.0).abs() < 1e-9, "{}", v[(0, 0)]);
+        assert!((v[(2, 2)] / sigma2.z - 1.0).abs() < 1e-9, "{}", v[(2, 2)]);
+    }
 }
