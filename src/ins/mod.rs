@@ -764,7 +764,7 @@ fn run_step(
                 if lag_s.abs() > cfg.position.gnss_max_lag_s {
                     stats.gnss_stale += 1;
                 } else {
-                    match filter.update_gnss(&cfg.position, fix, lag_s) {
+                    match filter.update_gnss(&cfg.position, fix, lag_s, &q_nb, &core.att.w_nb_b()) {
                         Ok(nis) => {
                             stats.gnss_fused += 1;
                             core.consecutive_gated = 0;
