@@ -5,9 +5,10 @@
 //! the horizontal position error into the integrals of those terms. Also prints the mean
 //! velocity and horizontal-position NEES over the runs.
 //!
-//! `cargo run -p ianav-sim --profile ci --example ins_denied_budget -- [runs] [q_e_gyr] [novane]`
+//! `cargo run -p ianav-sim --profile ci --example ins_denied_budget -- [runs] [q_e_gyr] [novane|vane] [gyro_rw]`
 //! (`q_e_gyr`: the attitude filter's gyro-error Q̃ per step, `-` for the default; `novane`:
-//! fly without the AoA/AoS vanes).
+//! fly without the AoA/AoS vanes; `gyro_rw`: the simulated gyros' bias random walk σ_u,
+//! rad/s^1.5, instead of the paper's).
 
 use ianav::ins::InsSolution;
 use ianav::math::wgs84;
@@ -32,6 +33,10 @@ struct Budget {
     pos_int: [Vector3<f64>; 6],
     /// Per output sample: t, velocity terms, position terms, actual position error, NEES.
     rows: Vec<Row>,
+    /// Attitude NEES sums and counts, GNSS phase (from t = 0) and denied phase.
+    att_nees: [(f64, usize); 2],
+    /// Attitude-norm error at the last sample, deg.
+    att_norm_deg: f64,
 }
 
 #[derive(Clone)]
@@ -53,6 +58,15 @@ struct Row {
 
 impl FlightObserver for Budget {
     fn nav_solution(&mut self, truth: &TruthSample, sol: &InsSolution) {
+        if truth.t_s >= 0.0 {
+            let (att, _) = ianav_sim::metrics::nees(truth, sol).unwrap_or((f64::NAN, f64::NAN));
+            let k = usize::from(sol.gnss_denied);
+            self.att_nees[k].0 += att;
+            self.att_nees[k].1 += 1;
+            self.att_norm_deg = ianav::math::so3::log(&(truth.q_nb.inverse() * sol.q_nb))
+                .norm()
+                .to_degrees();
+        }
         if !sol.gnss_denied {
             return;
         }
@@ -114,12 +128,17 @@ fn main() -> anyhow::Result<()> {
         .map(|s| s.parse())
         .transpose()?;
     let no_vane = args.get(3).is_some_and(|s| s == "novane");
+    let gyro_rw: Option<f64> = args.get(4).map(|s| s.parse()).transpose()?;
     let mut all = Vec::new();
+    let (mut hor_end, mut att_end, mut att_nees) = (Vec::new(), Vec::new(), [0.0; 2]);
     for seed in 1..=runs {
         let mut setup = FlightSetup::builtin(2)?;
         setup.navigation = NavigationMode::Ins;
         if let Some(q) = q_e_gyr {
             setup.ins.attitude.q_e_gyr_rad2ps2 = q;
+        }
+        if let Some(rw) = gyro_rw {
+            setup.sensors.gyro.bias_rw_sigma = rw;
         }
         if no_vane {
             setup.sensors.air.vanes_enabled = false;
@@ -147,8 +166,27 @@ fn main() -> anyhow::Result<()> {
                 .collect::<Vec<_>>()
                 .join(", ")
         );
+        hor_end.push(hor(&last.p_err));
+        att_end.push(b.att_norm_deg);
+        for (acc, (sum, count)) in att_nees.iter_mut().zip(b.att_nees) {
+            *acc += sum / count as f64 / runs as f64;
+        }
         all.push(b.rows);
     }
+    let mean = |v: &[f64]| v.iter().sum::<f64>() / v.len() as f64;
+    let sd = |v: &[f64]| {
+        let m = mean(v);
+        (v.iter().map(|x| (x - m).powi(2)).sum::<f64>() / (v.len() as f64 - 1.0)).sqrt()
+    };
+    println!(
+        "at t_end: horizontal error {:.1} ± {:.1} m, attitude norm {:.3} ± {:.3}°; attitude NEES mean GNSS phase {:.2}, denied {:.2}",
+        mean(&hor_end),
+        sd(&hor_end),
+        mean(&att_end),
+        sd(&att_end),
+        att_nees[0],
+        att_nees[1]
+    );
     let n = all.iter().map(Vec::len).min().unwrap_or(0);
     let nr = all.len() as f64;
     // RMS per term of the horizontal velocity (over runs and samples) and the vertical.

@@ -63,12 +63,12 @@ fn runs() -> &'static (f64, Vec<Vec<Nees>>) {
         let mut per_run = Vec::new();
         let mut loss_s = 0.0;
         for seed in 1..=RUNS {
-            let mut setup = FlightSetup::builtin(2).unwrap();
+            let mut setup = FlightSetup::builtin(2).expect("scenario 2");
             setup.navigation = NavigationMode::Ins;
             loss_s = setup.scenario.gnss_loss_s;
-            let mut flight = Flight::new(&setup, seed).unwrap();
+            let mut flight = Flight::new(&setup, seed).expect("flight setup");
             let mut rec = NeesRecorder::default();
-            flight.run(&mut rec, |_| {}).unwrap();
+            flight.run(&mut rec, |_| {}).expect("flight");
             assert!(
                 rec.samples.len() > 4900,
                 "seed {seed}: {} samples",
@@ -76,7 +76,7 @@ fn runs() -> &'static (f64, Vec<Vec<Nees>>) {
             );
             per_run.push(rec.samples);
         }
-        let n = per_run.iter().map(Vec::len).min().unwrap();
+        let n = per_run.iter().map(Vec::len).min().expect("runs");
         // Output instants are the same in every run.
         for run in &per_run {
             assert!((run[n - 1].t_s - per_run[0][n - 1].t_s).abs() < 1e-9);

@@ -316,7 +316,7 @@ pub struct InsStats {
 enum PositionMode {
     Gnss {
         filter: Box<GnssFilter>,
-        est: GnssPhaseEstimates,
+        est: Box<GnssPhaseEstimates>,
     },
     Denied(Box<DeniedNav>),
 }
@@ -611,7 +611,7 @@ impl Ins {
             att,
             position: PositionMode::Gnss {
                 filter: Box::new(gnss),
-                est,
+                est: Box::new(est),
             },
             prev,
             last_fix_us,

@@ -13,16 +13,17 @@
 //! term in `A_vv = −[2 w_ie + w_en]×`; `F = expm(AΔt)` is evaluated in closed form (series in
 //! `Ω = [2 w_ie + w_en]×` up to `Ω²`; error `O((|Ω|Δt)³)` ≈ 1e-18).
 //!
-//! **GNSS phase.** Every step `Δp = LPF_3s(Δp(ΔT̂, Ĥp, H(ĥ)))` and
-//! `v_lf = LPF_3s(v̂ − C_nb v_TAS^b(V̂, α̂, β̂))`, both initialised with their first raw value.
+//! **GNSS phase.** Every step `Δp = LPF(Δp(ΔT̂, Ĥp, H(ĥ)))` and
+//! `v_lf = LPF(v̂ − C_nb v_TAS^b(V̂, α̂, β̂))`, both initialised with their first raw value;
+//! the turbulence intensity from the raw wind's deviation from `v_lf`.
 //!
 //! **GNSS-denied.** The 6-state EKF `[f_ib_b, E_acc]` (`F = I`, `y = f̃`, `H = [I I]`) starts
 //! from the GNSS filter's blocks; Δp and the wind are frozen; `v_n = v_lf + C_nb v_TAS^b`;
 //! `h = h(Hp, ΔT̂, Δp)`; latitude and longitude are Euler-integrated with the previous step's
-//! radii. Covariances: velocity = frozen-wind covariance + the air-relative velocity's
-//! (attitude and air-data covariances mapped through `C_nb v_TAS^b`); horizontal position =
-//! the covariance of `[δp, δw]` with `δp' = δp + Δt (δw + δv_air)` (the frozen wind error is
-//! a random constant, so σ grows linearly); vertical = the barometric altitude's first-order
+//! radii. Covariances: velocity and horizontal position from the dead-reckoning error model
+//! `δv = δw + C_nb (δg + δb) + δv_air` (frozen-wind error, Gauss–Markov gust with the
+//! turbulence intensity measured while GNSS is available, air-velocity bias, white air-velocity
+//! error; [`DeniedNav`], docs/INS.md); vertical = the barometric altitude's first-order
 //! variance from `Hp`, `ΔT` and the frozen `Δp`.
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
@@ -171,7 +172,7 @@ impl GnssFilter {
         let w_en = wgs84::omega_en_n(&self.pos, &self.v_n);
         let w = w_ie * 2.0 + w_en;
         let c_nb = q_nb.to_rotation_matrix().into_inner();
-        let v_dot = self.acceleration_n(&c_nb, &self.f_b);
+        let v_dot = c_nb * self.f_b + wgs84::gravity_ned_mps2(&self.pos) - w.cross(&self.v_n);
         let rates = wgs84::geodetic_rates(&self.pos, &self.v_n);
         self.pos.lat_rad += rates.x * dt_s;
         self.pos.lon_rad += rates.y * dt_s;
