@@ -5,10 +5,10 @@
 //! the horizontal position error into the integrals of those terms. Also prints the mean
 //! velocity and horizontal-position NEES over the runs.
 //!
-//! `cargo run -p ianav-sim --profile ci --example ins_denied_budget -- [runs] [q_e_gyr] [novane|vane] [gyro_rw]`
+//! `cargo run -p ianav-sim --profile ci --example ins_denied_budget -- [runs] [q_e_gyr] [novane|vane] [gyro_rw|-] [scenario]`
 //! (`q_e_gyr`: the attitude filter's gyro-error Q̃ per step, `-` for the default; `novane`:
 //! fly without the AoA/AoS vanes; `gyro_rw`: the simulated gyros' bias random walk σ_u,
-//! rad/s^1.5, instead of the paper's).
+//! rad/s^1.5, instead of the paper's; `scenario`: 1 or 2, default 2).
 
 use ianav::ins::InsSolution;
 use ianav::math::wgs84;
@@ -128,11 +128,16 @@ fn main() -> anyhow::Result<()> {
         .map(|s| s.parse())
         .transpose()?;
     let no_vane = args.get(3).is_some_and(|s| s == "novane");
-    let gyro_rw: Option<f64> = args.get(4).map(|s| s.parse()).transpose()?;
+    let gyro_rw: Option<f64> = args
+        .get(4)
+        .filter(|s| s.as_str() != "-")
+        .map(|s| s.parse())
+        .transpose()?;
+    let scenario: u8 = args.get(5).map_or(Ok(2), |s| s.parse())?;
     let mut all = Vec::new();
     let (mut hor_end, mut att_end, mut att_nees) = (Vec::new(), Vec::new(), [0.0; 2]);
     for seed in 1..=runs {
-        let mut setup = FlightSetup::builtin(2)?;
+        let mut setup = FlightSetup::builtin(scenario)?;
         setup.navigation = NavigationMode::Ins;
         if let Some(q) = q_e_gyr {
             setup.ins.attitude.q_e_gyr_rad2ps2 = q;
