@@ -5,7 +5,8 @@
 //! Conversions (all checked in the tests with round numbers):
 //! - IMU axes: PX4 and ArduPilot report the IMU in the vehicle's FRD body axes, which are our
 //!   `B` (x forward, y right, z down), so vectors are taken as they are.
-//! - HIGHRES_IMU: m/s², rad/s, gauss (1 G = 10⁵ nT), `abs_pressure` hPa (×100 Pa), °C. Only
+//! - HIGHRES_IMU: m/s², rad/s, gauss (1 G = 10⁵ nT), `abs_pressure` hPa (×100 Pa) — or Pa as
+//!   PX4 v1.16 sends it, told apart by its magnitude ([`highres_pressure_pa`]), °C. Only
 //!   the fields flagged in `fields_updated` are used (0 = legacy sender: all fields).
 //! - SCALED_IMU (and ArduPilot's RAW_IMU, which carries the same scaled units): mG (×9.80665
 //!   × 10⁻³ m/s²), mrad/s, mgauss (×100 nT). A PX4 RAW_IMU is in raw ADC counts with no scale
@@ -381,7 +382,7 @@ impl InputDecoder {
                 }
                 if has(0x0200) {
                     let temp_c = has(0x1000).then_some(f64::from(m.temperature));
-                    match self.air(t_us, f64::from(m.abs_pressure) * 100.0, temp_c) {
+                    match self.air(t_us, highres_pressure_pa(m.abs_pressure), temp_c) {
                         Ok(a) => out.push(a),
                         Err(r) => self.counters.count(r),
                     }
@@ -643,6 +644,17 @@ impl InputDecoder {
     }
 }
 
+/// HIGHRES_IMU `abs_pressure` in Pa. The message defines hPa, but PX4 (v1.16) sends Pa. The two
+/// ranges cannot overlap for a flying vehicle: hPa values lie below 1,200 and Pa values above
+/// [`HIGHRES_PA_THRESHOLD`] (2.5 kPa is about 25 km up).
+pub fn highres_pressure_pa(abs_pressure: f32) -> f64 {
+    let v = f64::from(abs_pressure);
+    if v > HIGHRES_PA_THRESHOLD { v } else { v * 100.0 }
+}
+
+/// HIGHRES_IMU `abs_pressure` values above this are in Pa, below in hPa.
+pub const HIGHRES_PA_THRESHOLD: f64 = 1_500.0;
+
 fn check_airspeed(v: f64) -> Result<f64, Reject> {
     finite(&[v])?;
     if !(0.0..=MAX_AIRSPEED_MPS).contains(&v) {
@@ -835,6 +847,16 @@ mod tests {
         // (2³¹ − 1 + 2³¹) mm: computed without wrapping (the INS rejects the height itself).
         let und = d.undulation_m().unwrap();
         assert!((und - 4_294_967.295).abs() < 1e-6, "{und}");
+    }
+
+    #[test]
+    fn highres_pressure_in_hpa_per_the_definition_or_in_pa_as_px4_sends_it() {
+        assert!((highres_pressure_pa(1013.25) - 101_325.0).abs() < 0.01);
+        assert!((highres_pressure_pa(101_325.0) - 101_325.0).abs() < 0.01);
+        // 25 km up: 25.5 hPa / 2,549 Pa; and the edges of the sea-level range.
+        assert!((highres_pressure_pa(25.49) - 2_549.0).abs() < 0.01);
+        assert!((highres_pressure_pa(2_549.0) - 2_549.0).abs() < 0.01);
+        assert!((highres_pressure_pa(1_100.0) - 110_000.0).abs() < 0.01);
     }
 
     fn vfr(airspeed: f32) -> apm::MavMessage {
