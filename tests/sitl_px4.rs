@@ -24,7 +24,13 @@ fn px4_sih_short_flight_open_loop() {
         .arg(repo.join("tools/sitl/px4.py"))
         .arg("--px4-build")
         .arg(&build)
-        .args(["--daemon", env!("CARGO_BIN_EXE_ianav"), "--mode", "open", "--short"])
+        .args([
+            "--daemon",
+            env!("CARGO_BIN_EXE_ianav"),
+            "--mode",
+            "open",
+            "--short",
+        ])
         .arg("--out")
         .arg(&out)
         .status()
@@ -33,11 +39,19 @@ fn px4_sih_short_flight_open_loop() {
     let s: toml::Table = toml::from_str(&text).expect("summary.toml parses");
     assert!(status.success(), "harness failed; summary:\n{text}");
     assert_eq!(s["completed"].as_bool(), Some(true), "{text}");
-    assert_eq!(s["ianav_published_after_loss"].as_bool(), Some(true), "{text}");
+    assert_eq!(
+        s["ianav_published_after_loss"].as_bool(),
+        Some(true),
+        "{text}"
+    );
 
     let err = s["horizontal_error_after_loss"].as_table().expect("errors");
     let wind_mps = s["wind_mps"].as_float().expect("wind");
-    for (key, t_s) in [("ianav_1min_m", 60.0), ("ianav_2min_m", 120.0), ("ap_1min_m", 60.0)] {
+    for (key, t_s) in [
+        ("ianav_1min_m", 60.0),
+        ("ianav_2min_m", 120.0),
+        ("ap_1min_m", 60.0),
+    ] {
         let e = err
             .get(key)
             .and_then(|v| v.as_float())
@@ -47,7 +61,10 @@ fn px4_sih_short_flight_open_loop() {
         // by wind × time: an INS that estimated the wind while GNSS was there must beat it.
         if key.starts_with("ianav") {
             let bound_m = wind_mps * t_s;
-            assert!(e < bound_m, "{key} = {e} m ≥ wind × t = {bound_m} m:\n{text}");
+            assert!(
+                e < bound_m,
+                "{key} = {e} m ≥ wind × t = {bound_m} m:\n{text}"
+            );
         }
     }
     // The csv has one row per 0.2 s of PX4 time from arming to the end, loss included.
@@ -57,6 +74,9 @@ fn px4_sih_short_flight_open_loop() {
         .skip(1)
         .filter(|l| l.split(',').next().and_then(|t| t.parse::<f64>().ok()) >= Some(0.0))
         .count();
-    assert!(after_loss >= 5 * 120, "only {after_loss} rows after the loss");
+    assert!(
+        after_loss >= 5 * 120,
+        "only {after_loss} rows after the loss"
+    );
     assert!(out.join("error.png").exists());
 }

@@ -25,8 +25,8 @@ import os
 import queue
 import select
 import shutil
+import signal
 import socket
-import struct
 import subprocess
 import sys
 import tempfile
@@ -568,7 +568,7 @@ class Harness:
             log(f"GNSS off; denied for {a.denied_s} s")
             self.sim_sleep(a.denied_s)
             self.completed = True
-        except Exception as e:  # keep what was recorded: the summary says the flight failed
+        except (Exception, KeyboardInterrupt) as e:  # keep what was recorded: the summary says so
             log(f"flight aborted: {e}")
             self.completed = False
             self.abort_reason = str(e)
@@ -865,6 +865,11 @@ def main(argv=None):
     ap.add_argument("--csv-period-s", type=float, default=0.2, help="flight.csv row period")
     ap.add_argument("--short", action="store_true", help="quick check: 60 s cruise, 120 s denied")
     a = ap.parse_args(argv)
+
+    def on_term(signum, _frame):  # stop PX4 and the daemon too (they run in their own sessions)
+        raise KeyboardInterrupt(f"signal {signum}")
+
+    signal.signal(signal.SIGTERM, on_term)
     if a.short:
         a.cruise_s, a.denied_s = 60.0, 130.0
     s = Harness(a).fly()
