@@ -174,6 +174,7 @@ class Harness:
         self.probe = args.mode == "alone"
         self.px4 = None
         self.daemon = None
+        self.ekf_notes: dict = {}
 
     # ---------------------------------------------------------------- sockets and IO thread
     def open_sockets(self):
@@ -367,8 +368,26 @@ class Harness:
         r = subprocess.run([str(exe), "--instance", str(self.args.instance), *words[1:]],
                            capture_output=True, text=True, timeout=30)
         out = (r.stdout + r.stderr).strip()
-        log(f"px4 {' '.join(words)} -> rc {r.returncode} {out[-200:]}")
+        if words[0] != "listener":
+            log(f"px4 {' '.join(words)} -> rc {r.returncode} {out[-200:]}")
         return out
+
+    def ekf_snapshot(self, label):
+        """EKF2's aiding flags and its EV position fusion state (px4-listener), for the summary."""
+        keep = ("cs_gnss_pos", "cs_ev_pos", "cs_ev_vel", "cs_fuse_aspd", "cs_fuse_beta",
+                "cs_wind_dead_reckoning", "cs_inertial_dead_reckoning", "fused",
+                "innovation_rejected", "test_ratio", "innovation", "observation_variance")
+        lines = []
+        for topic in ("estimator_status_flags", "estimator_aid_src_ev_pos"):
+            out = self.px4_cmd("listener", topic, "-n", "1")
+            if "never published" in out:
+                lines.append(f"{topic}: never published")
+                continue
+            for ln in out.splitlines():
+                k = ln.strip().split(":")[0]
+                if k in keep:
+                    lines.append(f"{topic}.{ln.strip()}")
+        self.ekf_notes[label] = lines
 
     def daemon_config(self, path: Path):
         """The daemon's configuration: the given file, with the SITL link keys overridden."""
@@ -563,10 +582,15 @@ class Harness:
             t_wind = self.latest_t_us
             log(f"wind {a.wind_mps} m/s from {a.wind_from_deg} deg; cruising {a.cruise_s} s")
             self.sim_sleep(a.cruise_s)
+            self.ekf_snapshot("before_loss")
             self.px4_cmd("param", "set", "SIM_GPS_USED", "0")
             t_cmd_loss = self.latest_t_us
             log(f"GNSS off; denied for {a.denied_s} s")
-            self.sim_sleep(a.denied_s)
+            first = min(60.0, a.denied_s)
+            self.sim_sleep(first)
+            self.ekf_snapshot("loss_plus_60s")
+            self.sim_sleep(a.denied_s - first)
+            self.ekf_snapshot("end")
             self.completed = True
         except (Exception, KeyboardInterrupt) as e:  # keep what was recorded: the summary says so
             log(f"flight aborted: {e}")
@@ -704,6 +728,7 @@ class Harness:
         s["flight_modes"] = [f"{(t - t_ref) / 1e6:.1f}s {n} armed={ar}" for t, n, ar in rec.modes]
         s["statustext"] = [f"{(t - t_ref) / 1e6:.1f}s {lk}: {x}" for t, lk, x in rec.statustext
                            if lk != "gcs" or "GPS" in x or "ailsafe" in x or "osition" in x][-40:]
+        s["ekf2"] = self.ekf_notes
         s["link"] = self.link_summary()
         (out / "summary.toml").write_text(to_toml(s))
         self.plot(out, t_s, ap_err, ia_err, ia[:, 3], t_loss is not None)
