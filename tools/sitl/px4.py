@@ -175,6 +175,13 @@ class Harness:
         self.px4 = None
         self.daemon = None
         self.ekf_notes: dict = {}
+        self.sysid = 1
+        # The daemon answers TIMESYNC on its own wall clock but, with mavlink.clock =
+        # "autopilot", stamps ODOMETRY in PX4's clock: PX4's timesync then maps those stamps
+        # by a wrong, drifting offset (it logs "time jump detected") and EKF2 stops fusing
+        # them. Dropping TIMESYNC both ways leaves PX4 unsynchronised, so it stamps each
+        # ODOMETRY at its arrival, as it would a companion without TIMESYNC.
+        self.drop_timesync = args.mode == "closed" and not args.keep_timesync
 
     # ---------------------------------------------------------------- sockets and IO thread
     def open_sockets(self):
@@ -231,10 +238,12 @@ class Harness:
                         self.on_sih(m)
 
     def on_px4_onboard(self, data, wall):
-        if self.daemon is not None:
+        msgs = self.parse("px4ob", data)
+        drop = self.drop_timesync and any(m.get_type() == "TIMESYNC" for m in msgs)
+        if self.daemon is not None and not drop:
             self.s_dmn.sendto(data, ("127.0.0.1", self.ports.daemon))
         with self.lock:
-            for m in self.parse("px4ob", data):
+            for m in msgs:
                 name = m.get_type()
                 st = STAMPS.get(name)
                 stamp = getattr(m, st[0]) * st[1] if st else None
@@ -247,6 +256,8 @@ class Harness:
     def on_daemon(self, data, wall):
         msgs = self.parse("daemon", data)
         output = any(m.get_type() in ("ODOMETRY", "SET_GPS_GLOBAL_ORIGIN") for m in msgs)
+        if self.drop_timesync and any(m.get_type() == "TIMESYNC" for m in msgs):
+            return
         with self.lock:
             for m in msgs:
                 name = m.get_type()
@@ -294,6 +305,7 @@ class Harness:
             with self.lock:
                 self.rec.gps_fix.append((m.time_usec, m.fix_type))
         elif name == "HEARTBEAT" and m.autopilot == mavlink.MAV_AUTOPILOT_PX4:
+            self.sysid = m.get_srcSystem()  # 1 + instance in SITL
             armed = bool(m.base_mode & mavlink.MAV_MODE_FLAG_SAFETY_ARMED)
             mode = (px4_mode_name(m.custom_mode), armed)
             if mode != self.mode:
@@ -460,7 +472,7 @@ class Harness:
     def command(self, cmd, *params, timeout=5.0):
         p = list(params) + [0.0] * (7 - len(params))
         for _ in range(3):
-            self.send_gcs(mavlink.MAVLink_command_long_message(1, 1, cmd, 0, *p))
+            self.send_gcs(mavlink.MAVLink_command_long_message(self.sysid, 1, cmd, 0, *p))
             t0 = time.monotonic()
             while time.monotonic() - t0 < timeout:
                 try:
@@ -473,12 +485,12 @@ class Harness:
 
     def set_interval(self, send, msg_id, rate_hz):
         send(mavlink.MAVLink_command_long_message(
-            1, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / rate_hz, 0, 0, 0, 0, 0))
+            self.sysid, 1, mavlink.MAV_CMD_SET_MESSAGE_INTERVAL, 0, msg_id, 1e6 / rate_hz, 0, 0, 0, 0, 0))
 
     def upload_mission(self, items):
         while not self.gcs_q.empty():
             self.gcs_q.get_nowait()
-        self.send_gcs(mavlink.MAVLink_mission_count_message(1, 1, len(items), 0))
+        self.send_gcs(mavlink.MAVLink_mission_count_message(self.sysid, 1, len(items), 0))
         t0 = time.monotonic()
         while time.monotonic() - t0 < 30:
             try:
@@ -499,7 +511,7 @@ class Harness:
         def item(seq, cmd, lat=0.0, lon=0.0, alt=0.0, p1=0.0, p2=0.0, p3=0.0, p4=0.0,
                  frame=mavlink.MAV_FRAME_GLOBAL_RELATIVE_ALT_INT):
             return mavlink.MAVLink_mission_item_int_message(
-                1, 1, seq, frame, cmd, 0, 1, p1, p2, p3, p4, int(lat * 1e7), int(lon * 1e7), alt, 0)
+                self.sysid, 1, seq, frame, cmd, 0, 1, p1, p2, p3, p4, int(lat * 1e7), int(lon * 1e7), alt, 0)
 
         alt = self.args.alt_m
         la, lo = offset_latlon(lat0, lon0, 600.0, 0.0)
@@ -696,6 +708,9 @@ class Harness:
             "speed_factor": a.speed_factor,
             "cruise_before_loss_s": a.cruise_s,
             "denied_s": a.denied_s,
+            "timesync_dropped_by_router": self.drop_timesync,
+            "px4_timesync_resets": count_in(Path(a.out) / "logs" / "px4.log",
+                                            "time jump detected"),
             "px4_params": {k: v for k, v in self.px4_params().items()},
         }
         if t_loss is not None:
@@ -859,6 +874,13 @@ def to_toml(d: dict, prefix: str = "") -> str:
     return text
 
 
+def count_in(path: Path, text: str) -> int:
+    try:
+        return path.read_text(errors="replace").count(text)
+    except OSError:
+        return -1
+
+
 def git_describe() -> str:
     r = subprocess.run(["git", "-C", str(REPO), "describe", "--always", "--dirty"],
                        capture_output=True, text=True)
@@ -886,6 +908,8 @@ def main(argv=None):
     ap.add_argument("--denied-s", type=float, default=630.0, help="flight after the loss")
     ap.add_argument("--ev-ctrl", type=int, default=1,
                     help="EKF2_EV_CTRL in closed mode: 1 horizontal position, 5 + velocity")
+    ap.add_argument("--keep-timesync", action="store_true",
+                    help="closed: forward TIMESYNC between PX4 and the daemon (see drop_timesync)")
     ap.add_argument("--ev-delay-ms", type=float, default=0.0, help="EKF2_EV_DELAY (closed)")
     ap.add_argument("--csv-period-s", type=float, default=0.2, help="flight.csv row period")
     ap.add_argument("--short", action="store_true", help="quick check: 60 s cruise, 120 s denied")
