@@ -837,6 +837,7 @@ class Harness:
         ax.set_xlabel("time since GNSS loss [s]")
         ax.set_ylabel("horizontal error [m]")
         ax.set_yscale("symlog", linthresh=10.0)
+        ax.set_ylim(bottom=0.0)
         ax.set_title(f"PX4 SIH airplane, mode {a.mode}, wind {a.wind_mps:g} m/s from "
                      f"{a.wind_from_deg:g} deg")
         ax.grid(True, alpha=0.3)
