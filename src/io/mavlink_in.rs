@@ -649,7 +649,11 @@ impl InputDecoder {
 /// [`HIGHRES_PA_THRESHOLD`] (2.5 kPa is about 25 km up).
 pub fn highres_pressure_pa(abs_pressure: f32) -> f64 {
     let v = f64::from(abs_pressure);
-    if v > HIGHRES_PA_THRESHOLD { v } else { v * 100.0 }
+    if v > HIGHRES_PA_THRESHOLD {
+        v
+    } else {
+        v * 100.0
+    }
 }
 
 /// HIGHRES_IMU `abs_pressure` values above this are in Pa, below in hPa.

@@ -155,8 +155,16 @@ impl TimeSync {
     ) -> Option<apm::TIMESYNC_DATA> {
         if m.tc1 == 0 {
             self.counters.answered += 1;
+            // With the autopilot clock our outputs are stamped in the autopilot's time: answer
+            // in that time too (its newest stamp, at most one message period old), or the
+            // autopilot's own sync maps our stamps with the wall clock's offset (PX4 SITL at
+            // 3.85× logged time jumps and EKF2 stopped fusing our ODOMETRY).
+            let tc1_ns = match (self.autopilot_clock, self.newest_ap_us) {
+                (true, Some(n)) => n.saturating_add(self.epoch_us).saturating_mul(1_000),
+                _ => now_ns,
+            };
             return Some(apm::TIMESYNC_DATA {
-                tc1: i64::try_from(now_ns).unwrap_or(i64::MAX),
+                tc1: i64::try_from(tc1_ns).unwrap_or(i64::MAX),
                 ts1: m.ts1,
                 target_system: sys,
                 target_component: comp,
@@ -447,6 +455,19 @@ mod tests {
         assert_eq!(ts.counters().reboots, 1);
         assert_eq!(ts.offset_us(), Some(20_000_000));
         assert!(!ts.observe_clock(10_000, 20_010_500));
+    }
+
+    #[test]
+    fn with_the_autopilot_clock_timesync_requests_are_answered_in_its_time() {
+        let mut ts = TimeSync::new(10 * MS).with_autopilot_clock();
+        // Before any stamp: the daemon's clock.
+        let req = TimeSync::request(5, 1, 1);
+        assert_eq!(ts.handle(&req, 777, 1, 1).map(|r| r.tc1), Some(777));
+        // The vehicle runs 10× faster: its stamps, not our wall clock, answer.
+        ts.observe_clock(40_000_000, 4_000_000);
+        let r = ts.handle(&req, 4_000_100_000, 1, 1).unwrap();
+        assert_eq!(r.tc1, 40_000_000_000);
+        assert_eq!(r.ts1, 5);
     }
 
     #[test]
