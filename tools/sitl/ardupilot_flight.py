@@ -218,6 +218,8 @@ class Gcs:
         t = m.get_type()
         if t == "GLOBAL_POSITION_INT":
             self.t_ms = max(self.t_ms, float(m.time_boot_ms))
+            if m.lat == 0 and m.lon == 0:
+                return  # no position estimate yet
             self.ap.append((float(m.time_boot_ms), m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
         elif t == "SIM_STATE":
             lat = m.lat_int * 1e-7 if getattr(m, "lat_int", 0) else m.lat
@@ -309,7 +311,9 @@ def free_udp_port():
     return p
 
 
-def write_daemon_config(path, port, ins_config):
+def write_daemon_config(path, port, ins_config, args):
+    # Keys newer daemons know are written only when asked for, so older builds still run.
+    extra = "" if args.gnss_lag_s is None else f"gnss_lag_s = {args.gnss_lag_s}\n"
     with open(path, "w") as f:
         f.write(f"""# Written by tools/sitl/ardupilot_flight.py
 [mavlink]
@@ -317,8 +321,8 @@ connection = "udpin:127.0.0.1:{port}"
 autopilot = "ardupilot"
 clock = "autopilot"
 [input]
-imu_rate_hz = 40.0
-[output]
+imu_rate_hz = {args.imu_rate_hz}
+{extra}[output]
 mode = "gps_input"
 rate_hz = 5.0
 gps_id = 1
@@ -387,7 +391,8 @@ def fly(args):
             router = Router(base + 2, args.daemon_port or free_udp_port(),
                             drop_gps_input=(args.mode == "open"))
             dcfg = os.path.join(work, "ianav.toml")
-            write_daemon_config(dcfg, router.daemon_addr[1], os.path.abspath(args.ins_config))
+            write_daemon_config(dcfg, router.daemon_addr[1], os.path.abspath(args.ins_config),
+                                args)
             dlog = open(os.path.join(out, "daemon.log"), "w")
             daemon = subprocess.Popen([args.ianav, "run", "--config", dcfg], stdout=dlog,
                                       stderr=subprocess.STDOUT, start_new_session=True)
@@ -553,6 +558,9 @@ def analyse(args, out, defn, gcs, router, completed, t_loss, t_cruise):
     s["seed"] = args.seed
     s["short"] = bool(args.short)
     s["speedup"] = args.speedup
+    s["daemon_imu_rate_hz"] = args.imu_rate_hz
+    s["daemon_gnss_lag_s"] = args.gnss_lag_s
+    s["daemon_commit"] = args.daemon_commit
     s["circuit_rotation_deg"] = defn["circuit_rotation_deg"]
     s["cruise_before_loss_s"] = args.cruise_s
     s["denied_s"] = round(post[-1]["t_s"], 1) if post else 0.0
@@ -593,8 +601,11 @@ def analyse(args, out, defn, gcs, router, completed, t_loss, t_cruise):
     link = {}
     rates = {}
     if router is not None and gcs is not None and gcs.t_ms > 0:
-        t0 = (t_cruise or 0) if t_cruise else gcs.t_ms - 60000
-        rates = rate_stats(router, t0, gcs.t_ms)
+        # Cruise with GNSS: the link in its normal state (stamps of GPS_RAW_INT freeze after
+        # the loss).
+        t1 = t_loss if t_loss is not None and not math.isnan(t_loss) else gcs.t_ms
+        t0 = t_cruise if t_cruise is not None else t1 - 60000
+        rates = rate_stats(router, t0, t1)
         lat_ms = []
         iw = sorted(router.imu_wall)
         iw_t = [x[0] for x in iw]
@@ -677,9 +688,10 @@ def plot(path, rows, args):
         ax.plot([r["t_s"] / 60 for r in ri], [r["ianav_err"] for r in ri], label="ianav")
         ax.plot([r["t_s"] / 60 for r in ri], [r["hacc"] for r in ri], ":",
                 label="ianav horiz_accuracy")
-    ax.axvline(0, color="k", lw=0.8)
-    ax.text(0, ax.get_ylim()[1] * 0.95, " GNSS lost", va="top")
     ax.set_yscale("symlog", linthresh=10)
+    ax.set_ylim(bottom=0)
+    ax.axvline(0, color="k", lw=0.8)
+    ax.text(0, ax.get_ylim()[1] * 0.7, " GNSS lost", va="top")
     ax.set_xlabel("time since GNSS loss [min]")
     ax.set_ylabel("horizontal error [m]")
     ax.set_title(f"ArduPlane SITL, mode {args.mode}, wind {args.wind_speed} m/s from "
@@ -710,6 +722,10 @@ def main():
     ap.add_argument("--speedup", type=float, default=5.0)
     ap.add_argument("--instance", type=int, default=3, help="SITL -I (ports 5760 + 10 I)")
     ap.add_argument("--daemon-port", type=int, default=0)
+    ap.add_argument("--imu-rate-hz", type=float, default=40.0,
+                    help="daemon input.imu_rate_hz (ArduPlane accepts 40 Hz at most)")
+    ap.add_argument("--gnss-lag-s", type=float,
+                    help="daemon input.gnss_lag_s (not written if absent)")
     ap.add_argument("--csv-step-s", type=float, default=0.0,
                     help="decimate flight.csv (0: every truth sample, 10 Hz)")
     ap.add_argument("--keep-work", action="store_true")
@@ -727,6 +743,7 @@ def main():
             capture_output=True, text=True, timeout=10).stdout.strip() or "unknown"
     except (OSError, subprocess.SubprocessError):
         args.ap_version = "unknown"
+    args.daemon_commit = os.environ.get("IANAV_COMMIT", "")
     s, _ = fly(args)
     sys.exit(0 if s["completed"] else 1)
 
