@@ -107,6 +107,19 @@ pub enum TemperatureSource {
     Isa,
 }
 
+/// What the AOA_SSA message is.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AoaSsaUse {
+    /// Not used (default). ArduPilot computes AOA_SSA from its own EKF velocity minus its EKF
+    /// wind, not from vanes: once the autopilot fuses our output, that is our own solution
+    /// fed back, which made the sideslip and the position diverge beside ArduPlane.
+    Ignore,
+    /// AOA_SSA carries measurements of real angle-of-attack and sideslip vanes (e.g. the
+    /// simulator's vehicle, or an autopilot build that forwards vanes there).
+    Vanes,
+}
+
 /// `[mavlink]`: the link to the autopilot.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -190,6 +203,19 @@ pub struct InputConfig {
     /// GNSS is declared lost after this long without a valid 3D fix, s.
     #[serde(default = "default_gnss_loss_timeout_s")]
     pub gnss_loss_timeout_s: f64,
+    /// What AOA_SSA is: `ignore` (default: ArduPilot derives it from its EKF) or `vanes`.
+    #[serde(default = "default_aoa_ssa")]
+    pub aoa_ssa: AoaSsaUse,
+    /// Age of a GNSS fix when the autopilot stamps it, s: GPS_RAW_INT `time_usec` is when the
+    /// autopilot received the fix (receiver latency not included). The fix is dated this much
+    /// earlier; the INS extrapolates it to its own time (ArduPilot SITL: 0.1 s of simulated
+    /// receiver lag; a u-blox receiver: about 0.1–0.2 s).
+    #[serde(default)]
+    pub gnss_lag_s: f64,
+}
+
+fn default_aoa_ssa() -> AoaSsaUse {
+    AoaSsaUse::Ignore
 }
 
 fn default_imu_rate_hz() -> f64 {
@@ -221,6 +247,8 @@ impl Default for InputConfig {
             temperature: default_temperature(),
             isa_delta_t_k: 0.0,
             gnss_loss_timeout_s: default_gnss_loss_timeout_s(),
+            aoa_ssa: default_aoa_ssa(),
+            gnss_lag_s: 0.0,
         }
     }
 }
@@ -536,6 +564,14 @@ impl DaemonConfig {
             i.gnss_loss_timeout_s,
             0.2,
             60.0,
+        )?;
+        // The INS refuses fixes older than `position.gnss_max_lag_s` at their IMU step; keep
+        // room for the link's own delay.
+        in_range(
+            "input.gnss_lag_s",
+            i.gnss_lag_s,
+            0.0,
+            0.8 * self.ins.position.gnss_max_lag_s,
         )?;
         let o = &self.output;
         in_range("output.rate_hz", o.rate_hz, 1.0, 200.0)?;

@@ -362,7 +362,7 @@ fn daemon_toml(imu_rate_hz: f64, air_rate_hz: f64, output_hz: f64) -> String {
     let year = setup().scenario.magnetic_decimal_year;
     format!(
         "link_timeout_s = 3.0\n\
-         [input]\nimu_rate_hz = {imu_rate_hz}\nair_rate_hz = {air_rate_hz}\n\
+         [input]\nimu_rate_hz = {imu_rate_hz}\nair_rate_hz = {air_rate_hz}\naoa_ssa = \"vanes\"\n\
          [output]\nmode = \"odometry\"\nrate_hz = {output_hz}\n\
          [navigation]\nmag_decimal_year = {year}\n\
          [logging]\ncounters_period_s = 0.0\n"

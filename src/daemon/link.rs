@@ -18,7 +18,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::nav_thread::NavInput;
 use super::{Clock, Outbox, Shared, stopped_after};
-use crate::config::{AutopilotKind, DaemonConfig};
+use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig};
 use crate::ins::InsInit;
 use crate::io::mavlink_in::{DecoderConfig, InputDecoder};
 use crate::io::mavlink_out;
@@ -169,6 +169,8 @@ pub(super) async fn reader(
             isa_delta_t_k: cfg.input.isa_delta_t_k,
             raw_imu_is_scaled: cfg.mavlink.autopilot == AutopilotKind::Ardupilot,
             default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
+            aoa_ssa_is_vanes: cfg.input.aoa_ssa == AoaSsaUse::Vanes,
+            gnss_lag_us: (cfg.input.gnss_lag_s * 1e6).round() as u64,
         }),
         gate: MonotonicGate::default(),
         seq: SequenceTracker::default(),
@@ -345,7 +347,12 @@ async fn handle_raw(
                 outbox.send(M::TIMESYNC(reply));
             }
         }
-        M::COMMAND_ACK(_) => shared.count(|c| c.command_acks += 1),
+        M::COMMAND_ACK(a) => {
+            shared.count(|c| c.command_acks += 1);
+            if a.command == apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL {
+                shared.state(|s| s.interval_acks.push(a.result));
+            }
+        }
         _ => {}
     }
     let ReaderState { ts, dec, .. } = st;
@@ -378,6 +385,20 @@ async fn handle_raw(
             continue;
         }
         if let SensorEvent::Gnss(fix) = &ev {
+            let e7 = |rad: f64| (rad.to_degrees() * 1e7).round() as i64;
+            if shared.state(|s| s.is_echo(e7(fix.pos.lat_rad), e7(fix.pos.lon_rad))) {
+                let first = shared.count(|c| {
+                    c.gnss_echo += 1;
+                    c.gnss_echo == 1
+                });
+                if first {
+                    outbox.status(
+                        apm::MavSeverity::MAV_SEVERITY_WARNING,
+                        "ianav: autopilot reports our GPS_INPUT as GNSS; refused",
+                    );
+                }
+                continue;
+            }
             shared.state(|s| s.last_fix_us = Some(rx_us));
             if !st.init_sent {
                 match st.dec.attitude() {
@@ -441,16 +462,21 @@ pub(super) async fn timesync_requests(
 pub fn requested_streams(cfg: &DaemonConfig, kind: AutopilotKind) -> Vec<(u32, f64)> {
     let i = &cfg.input;
     let mut v = match kind {
+        // ArduPlane DENIES intervals shorter than 80 % of its loop period: the negotiation
+        // steps the rate down to the fastest it accepts (40 Hz at a 50 Hz loop).
         AutopilotKind::Ardupilot => vec![
-            // ArduPlane refuses intervals faster than its 50 Hz loop.
-            (apm::SCALED_IMU_DATA::ID, i.imu_rate_hz.min(50.0)),
-            (apm::AOA_SSA_DATA::ID, i.air_rate_hz),
+            (apm::SCALED_IMU_DATA::ID, i.imu_rate_hz),
+            // Its AIRSPEED (the sensor, with a health flag) defaults to 1 Hz.
+            (apm::AIRSPEED_DATA::ID, i.air_rate_hz),
         ],
         _ => vec![
             (apm::HIGHRES_IMU_DATA::ID, i.imu_rate_hz),
             (apm::AIRSPEED_DATA::ID, i.air_rate_hz),
         ],
     };
+    if i.aoa_ssa == AoaSsaUse::Vanes {
+        v.push((apm::AOA_SSA_DATA::ID, i.air_rate_hz));
+    }
     v.extend([
         (apm::SCALED_PRESSURE_DATA::ID, i.air_rate_hz),
         (apm::VFR_HUD_DATA::ID, i.air_rate_hz),
@@ -462,34 +488,85 @@ pub fn requested_streams(cfg: &DaemonConfig, kind: AutopilotKind) -> Vec<(u32, f
     v
 }
 
-/// Send the SET_MESSAGE_INTERVAL set whenever the request generation changes (autopilot
-/// found, reboot, link restored).
+/// Negotiate the SET_MESSAGE_INTERVAL set whenever the request generation changes (autopilot
+/// found, reboot, link restored): one request in flight at a time, refused rates retried
+/// slower ([`intervals`](super::intervals)), every refusal logged, counted and announced.
 pub(super) async fn interval_requests(
     cfg: Arc<DaemonConfig>,
     outbox: Outbox,
     shared: Arc<Shared>,
     mut stop: watch::Receiver<bool>,
 ) {
+    use super::intervals::{Negotiator, Outcome};
+    let start = Instant::now();
     let mut done = 0_u64;
+    let mut round: Option<(u8, u8, Negotiator)> = None;
     loop {
-        if stopped_after(&mut stop, Duration::from_millis(200)).await {
+        if stopped_after(&mut stop, Duration::from_millis(20)).await {
             return;
         }
-        let (generation, ap) = shared.state(|s| (s.request_generation, s.autopilot));
+        let (generation, ap, acks) = shared.state(|s| {
+            (
+                s.request_generation,
+                s.autopilot,
+                std::mem::take(&mut s.interval_acks),
+            )
+        });
         let Some((sys, comp, kind)) = ap else {
             continue;
         };
-        if generation == done {
+        if generation != done {
+            done = generation;
+            round = Some((sys, comp, Negotiator::new(requested_streams(&cfg, kind))));
+            shared.state(|s| s.granted_intervals.clear());
+            shared.count(|c| c.interval_requests += 1);
+            tracing::info!(?kind, "negotiating message intervals");
             continue;
         }
-        done = generation;
-        for (id, rate) in requested_streams(&cfg, kind) {
+        let Some((sys, comp, neg)) = &mut round else {
+            continue;
+        };
+        let now_us = u64::try_from(start.elapsed().as_micros()).unwrap_or(u64::MAX);
+        let mut outcomes: Vec<Outcome> = acks.into_iter().filter_map(|r| neg.on_ack(r)).collect();
+        let (send, timed_out) = neg.poll(now_us);
+        outcomes.extend(timed_out);
+        for o in outcomes {
+            match o {
+                Outcome::Accepted { msg_id, rate_hz } => {
+                    tracing::info!(msg_id, rate_hz, "message interval accepted");
+                    shared.state(|s| s.granted_intervals.push((msg_id, rate_hz)));
+                }
+                Outcome::Refused {
+                    msg_id,
+                    rate_hz,
+                    result,
+                    retry_hz,
+                } => {
+                    shared.count(|c| c.interval_refused += 1);
+                    let text = match retry_hz {
+                        Some(r) => {
+                            format!("ianav: msg {msg_id} at {rate_hz} Hz refused, trying {r} Hz")
+                        }
+                        None => format!("ianav: msg {msg_id} refused at every rate"),
+                    };
+                    tracing::warn!(?result, "{text}");
+                    outbox.status(apm::MavSeverity::MAV_SEVERITY_WARNING, &text);
+                }
+                Outcome::Unanswered { msg_id, rate_hz } => {
+                    shared.count(|c| c.interval_unanswered += 1);
+                    tracing::warn!(msg_id, rate_hz, "message interval request not acknowledged");
+                }
+            }
+        }
+        if let Some((id, rate)) = send {
             outbox.send(apm::MavMessage::COMMAND_LONG(
-                mavlink_out::set_message_interval(sys, comp, id, rate),
+                mavlink_out::set_message_interval(*sys, *comp, id, rate),
             ));
         }
-        shared.count(|c| c.interval_requests += 1);
-        tracing::info!(?kind, "message intervals requested");
+        if neg.done() {
+            round = None;
+            tracing::info!("message intervals negotiated");
+        }
     }
 }
 

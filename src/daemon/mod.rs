@@ -18,6 +18,8 @@
 pub mod camera;
 #[cfg(feature = "opencv")]
 pub mod camera_cv;
+pub mod health;
+pub mod intervals;
 pub mod link;
 pub mod nav_thread;
 pub mod notify;
@@ -137,8 +139,12 @@ pub struct Counters {
     pub tx_failed: u64,
     /// Messages dropped because the outbox was full.
     pub tx_queue_full: u64,
-    /// SET_MESSAGE_INTERVAL rounds sent.
+    /// SET_MESSAGE_INTERVAL negotiation rounds started.
     pub interval_requests: u64,
+    /// Interval requests refused by the autopilot (DENIED and others).
+    pub interval_refused: u64,
+    /// Interval requests never acknowledged.
+    pub interval_unanswered: u64,
     /// COMMAND_ACKs received.
     pub command_acks: u64,
     /// Autopilot HEARTBEATs received.
@@ -163,6 +169,12 @@ pub struct Counters {
     pub solutions: u64,
     /// Messages published (ODOMETRY / GPS_INPUT / VISION_POSITION_ESTIMATE).
     pub published: u64,
+    /// GNSS fixes that were our own GPS_INPUT reported back (refused).
+    pub gnss_echo: u64,
+    /// Solutions not published because a self-check failed (`daemon::health`).
+    pub publish_withheld: u64,
+    /// Times publication was stopped by a self-check.
+    pub publish_withheld_episodes: u64,
     /// Monitor ticks (10 Hz) after the initialisation without a fresh solution (IMU
     /// stopped): nothing is published then.
     pub publish_stale: u64,
@@ -209,6 +221,34 @@ pub struct State {
     pub undulation_m: f64,
     /// Incremented when the intervals must be requested again (reboot, link restored).
     pub request_generation: u64,
+    /// Results of SET_MESSAGE_INTERVAL COMMAND_ACKs not yet taken by the negotiation.
+    pub interval_acks: Vec<apm::MavResult>,
+    /// Rates the autopilot accepted in the current negotiation (message id, Hz).
+    pub granted_intervals: Vec<(u32, f64)>,
+    /// Positions (lat, lon, degE7) of the last [`ECHO_MEMORY`] GPS_INPUTs sent: a GNSS fix
+    /// carrying one of them is our own output reported back, never a measurement.
+    pub sent_positions: std::collections::VecDeque<(i32, i32)>,
+}
+
+/// GPS_INPUTs remembered for echo detection (10 s at 5 Hz, 2.5 s at 20 Hz).
+pub const ECHO_MEMORY: usize = 50;
+
+impl State {
+    /// Remember a GPS_INPUT position.
+    pub fn remember_sent(&mut self, lat_e7: i32, lon_e7: i32) {
+        if self.sent_positions.len() >= ECHO_MEMORY {
+            self.sent_positions.pop_front();
+        }
+        self.sent_positions.push_back((lat_e7, lon_e7));
+    }
+
+    /// Whether a fix at (lat, lon) degE7 is one of our own GPS_INPUTs (an autopilot that made
+    /// our GPS_INPUT instance its primary receiver reports it in GPS_RAW_INT).
+    pub fn is_echo(&self, lat_e7: i64, lon_e7: i64) -> bool {
+        self.sent_positions
+            .iter()
+            .any(|(a, o)| i64::from(*a) == lat_e7 && i64::from(*o) == lon_e7)
+    }
 }
 
 /// State shared between tasks.
@@ -226,8 +266,8 @@ fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
 
 impl Shared {
     /// Update the counters.
-    pub fn count(&self, f: impl FnOnce(&mut Counters)) {
-        f(&mut lock(&self.counters));
+    pub fn count<R>(&self, f: impl FnOnce(&mut Counters) -> R) -> R {
+        f(&mut lock(&self.counters))
     }
 
     /// A copy of the counters.
@@ -622,6 +662,10 @@ pub fn log_counters(c: &Counters) {
         reboots = c.autopilot_reboots,
         solutions = c.solutions,
         published = c.published,
+        withheld = c.publish_withheld,
+        gnss_echo = c.gnss_echo,
+        interval_refused = c.interval_refused,
+        airspeed_unhealthy = c.input.airspeed_unhealthy,
         stale = c.publish_stale,
         tx = c.tx_messages,
         tx_failed = c.tx_failed,

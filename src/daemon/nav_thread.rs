@@ -111,6 +111,9 @@ pub fn spawn(
                     },
                     NavInput::FramesReady => {}
                     NavInput::Event(ev, rx_at) => {
+                        if let SensorEvent::Gnss(fix) = &ev {
+                            publisher.on_fix(fix.t_us);
+                        }
                         if let (SensorEvent::Gnss(fix), Some(sol)) = (&ev, last) {
                             if nav.gnss_denied() {
                                 let (first, _) = match back {

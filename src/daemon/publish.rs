@@ -10,6 +10,7 @@
 use std::sync::Arc;
 use std::time::Instant;
 
+use super::health::{OutputHealth, Transition};
 use super::{Clock, Outbox, Shared, resolved_mode};
 use crate::config::{DaemonConfig, OutputMode};
 use crate::io::mavlink_out::{self, GpsInputSettings};
@@ -30,12 +31,18 @@ pub struct Publisher {
     next_due_us: Option<u64>,
     /// Link generation and origin of the last SET_GPS_GLOBAL_ORIGIN.
     origin_sent_for: Option<(u64, Geodetic)>,
+    /// Self-checks that withhold solutions the daemon cannot back.
+    health: OutputHealth,
 }
 
 impl Publisher {
     /// A publisher at `cfg.output.rate_hz`.
     pub fn new(cfg: Arc<DaemonConfig>, clock: Clock, outbox: Outbox, shared: Arc<Shared>) -> Self {
         let period_us = (1e6 / cfg.output.rate_hz) as u64;
+        let health = OutputHealth::new(
+            cfg.ins.position.gnss_gate_chi2,
+            cfg.ins.position.gnss_timeout_s,
+        );
         Self {
             cfg,
             clock,
@@ -44,12 +51,37 @@ impl Publisher {
             period_us,
             next_due_us: None,
             origin_sent_for: None,
+            health,
         }
+    }
+
+    /// A valid GNSS fix reached the navigation (for the self-checks).
+    pub fn on_fix(&mut self, t_us: u64) {
+        self.health.on_fix(t_us);
     }
 
     /// Handle a new solution computed from an IMU message received at `imu_rx`.
     pub fn on_solution(&mut self, sol: &NavSolution, imu_rx: Instant) {
         let t_us = sol.ins.t_us;
+        let (healthy, transition) = self.health.check(sol);
+        match transition {
+            Some(Transition::Withheld(p)) => {
+                self.shared.count(|c| c.publish_withheld_episodes += 1);
+                self.outbox.status(
+                    apm::MavSeverity::MAV_SEVERITY_ERROR,
+                    &format!("ianav: not publishing: {p}"),
+                );
+            }
+            Some(Transition::Resumed) => self.outbox.status(
+                apm::MavSeverity::MAV_SEVERITY_NOTICE,
+                "ianav: self-checks pass, publishing again",
+            ),
+            None => {}
+        }
+        if !healthy {
+            self.shared.count(|c| c.publish_withheld += 1);
+            return;
+        }
         let due = *self.next_due_us.get_or_insert(t_us);
         if t_us < due {
             return;
@@ -76,12 +108,9 @@ impl Publisher {
                     leap_s: self.cfg.output.gps_leap_seconds,
                     undulation_m,
                 };
-                apm::MavMessage::GPS_INPUT(mavlink_out::gps_input(
-                    sol,
-                    &s,
-                    t_us,
-                    self.clock.unix_us(t_us),
-                ))
+                let g = mavlink_out::gps_input(sol, &s, t_us, self.clock.unix_us(t_us));
+                self.shared.state(|st| st.remember_sent(g.lat, g.lon));
+                apm::MavMessage::GPS_INPUT(g)
             }
             OutputMode::Odometry | OutputMode::VisionPositionEstimate | OutputMode::Auto => {
                 let Some(origin) = origin else { return };

@@ -15,8 +15,17 @@
 //!   taken as equivalent airspeed (the compressibility correction CAS→EAS is < 0.4 % below
 //!   Mach 0.3 and 3 km) and converted to true airspeed with the density from the static
 //!   pressure and temperature: `tas = eas · √(ρ₀ / ρ)`, `ρ = p / (R T)`.
-//!   AIRSPEED is preferred: VFR_HUD's airspeed is ignored while AIRSPEED arrived within 1 s.
-//! - AOA_SSA: degrees.
+//!   The freshest of the two is used. AIRSPEED flagged unhealthy is refused, and VFR_HUD's
+//!   airspeed is then refused too for [`AIRSPEED_UNHEALTHY_HOLD_US`]: ArduPilot's VFR_HUD
+//!   airspeed is its AHRS estimate (ground speed minus its wind) when the sensor is unhealthy,
+//!   i.e. derived from a solution that may be ours. (ArduPilot streams AIRSPEED at 1 Hz by
+//!   default and VFR_HUD faster: preferring AIRSPEED for a second ran the air data on a 1 Hz
+//!   airspeed.)
+//! - AOA_SSA: degrees; used only when configured as real vanes ([`DecoderConfig`]): ArduPilot
+//!   computes it from its EKF velocity minus its EKF wind — with our output fused, our own
+//!   solution fed back as a measurement.
+//! - SCALED_PRESSURE2 is a second barometer with its own bias: not mixed into the first one's
+//!   stream (counted as ignored).
 //! - One IMU source at a time: HIGHRES_IMU over SCALED_IMU over RAW_IMU. A lower-priority IMU
 //!   message is ignored (counted) while a higher-priority one arrived within
 //!   [`IMU_SOURCE_HOLD_US`]: ArduPilot streams RAW_IMU at 1 Hz by default next to the
@@ -27,7 +36,8 @@
 //!   down velocity is the `vz` of GLOBAL_POSITION_INT (the autopilot's GNSS-aided estimate)
 //!   when one arrived within [`VZ_MAX_AGE_US`], else 0 with its σ raised to
 //!   [`VD_UNKNOWN_SIGMA_MPS`]. σ: `h_acc`, `v_acc`, `vel_acc` when non-zero, else HDOP/VDOP ×
-//!   [`UERE_M`] and the INS's configured defaults.
+//!   [`UERE_M`] and the INS's configured defaults. The fix is dated the configured receiver
+//!   lag before its stamp (`time_usec` is when the autopilot received it).
 
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -62,6 +72,8 @@ pub const AIR_MAX_AGE_US: u64 = 500_000;
 pub const VZ_MAX_AGE_US: u64 = 1_000_000;
 /// σ of the down velocity when none is known, m/s (a fixed wing rarely climbs faster).
 pub const VD_UNKNOWN_SIGMA_MPS: f64 = 3.0;
+/// After an AIRSPEED flagged unhealthy, VFR_HUD's airspeed is refused for this long, µs.
+pub const AIRSPEED_UNHEALTHY_HOLD_US: u64 = 5_000_000;
 /// A lower-priority IMU message is ignored while a higher-priority one is this recent, µs.
 pub const IMU_SOURCE_HOLD_US: u64 = 1_000_000;
 /// User-equivalent range error turning a DOP into a σ when no accuracy is reported, m.
@@ -93,6 +105,8 @@ pub enum Reject {
     Time,
     /// A pressure sample with no recent airspeed (no air-data event).
     NoAirspeed,
+    /// The airspeed sensor is flagged unhealthy.
+    AirspeedUnhealthy,
 }
 
 /// Counters of the input conversion.
@@ -120,6 +134,13 @@ pub struct InputCounters {
     pub time: u64,
     /// Pressure samples without a recent airspeed.
     pub no_airspeed: u64,
+    /// AIRSPEED samples flagged unhealthy by the autopilot, and VFR_HUD airspeeds refused
+    /// after one (the autopilot's synthetic airspeed).
+    pub airspeed_unhealthy: u64,
+    /// AOA_SSA messages ignored (not configured as vanes).
+    pub aoa_ssa_ignored: u64,
+    /// SCALED_PRESSURE2 messages ignored (a second barometer).
+    pub second_baro_ignored: u64,
     /// GNSS fixes whose height is MSL (no `alt_ellipsoid`).
     pub gnss_msl_height: u64,
     /// GNSS fixes without a recent vertical velocity.
@@ -137,6 +158,7 @@ impl InputCounters {
             Reject::UnscaledRawImu => self.unscaled_raw_imu += 1,
             Reject::Time => self.time += 1,
             Reject::NoAirspeed => self.no_airspeed += 1,
+            Reject::AirspeedUnhealthy => self.airspeed_unhealthy += 1,
         }
     }
 
@@ -148,6 +170,7 @@ impl InputCounters {
             + self.unscaled_raw_imu
             + self.time
             + self.no_airspeed
+            + self.airspeed_unhealthy
     }
 }
 
@@ -171,6 +194,10 @@ pub struct DecoderConfig {
     pub raw_imu_is_scaled: bool,
     /// Default GNSS σ (the INS's), used when the receiver reports none: hor, ver m, vel m/s.
     pub default_sigma: (f64, f64, f64),
+    /// AOA_SSA carries real vane measurements (else it is ignored).
+    pub aoa_ssa_is_vanes: bool,
+    /// Receiver lag: a fix is dated this long before its stamp, µs.
+    pub gnss_lag_us: u64,
 }
 
 /// Stateful converter (keeps the latest airspeed, vanes, vertical speed and attitude).
@@ -178,8 +205,12 @@ pub struct DecoderConfig {
 pub struct InputDecoder {
     cfg: DecoderConfig,
     counters: InputCounters,
-    /// (t_us, equivalent airspeed m/s).
-    eas: Option<(u64, f64)>,
+    /// (t_us, equivalent airspeed m/s) from AIRSPEED (the sensor).
+    eas_sensor: Option<(u64, f64)>,
+    /// (t_us, equivalent airspeed m/s) from VFR_HUD.
+    eas_hud: Option<(u64, f64)>,
+    /// Last AIRSPEED flagged unhealthy, µs.
+    airspeed_unhealthy_us: Option<u64>,
     /// (t_us, aoa rad, aos rad).
     vanes: Option<(u64, f64, f64)>,
     /// (t_us, down velocity m/s).
@@ -189,8 +220,6 @@ pub struct InputDecoder {
     undulation_m: Option<f64>,
     /// Last time of each IMU message type: HIGHRES_IMU, SCALED_IMU, RAW_IMU, µs.
     imu_seen_us: [Option<u64>; 3],
-    /// Last AIRSPEED message, µs (VFR_HUD's airspeed is ignored while it streams).
-    airspeed_msg_us: Option<u64>,
 }
 
 /// Events decoded from one message (at most IMU + magnetometer + air data).
@@ -228,14 +257,20 @@ impl InputDecoder {
         Self {
             cfg,
             counters: InputCounters::default(),
-            eas: None,
+            eas_sensor: None,
+            eas_hud: None,
+            airspeed_unhealthy_us: None,
             vanes: None,
             vz: None,
             attitude: None,
             undulation_m: None,
             imu_seen_us: [None; 3],
-            airspeed_msg_us: None,
         }
+    }
+
+    /// The configuration.
+    pub fn config(&self) -> &DecoderConfig {
+        &self.cfg
     }
 
     /// Counters so far.
@@ -260,12 +295,13 @@ impl InputDecoder {
 
     /// Forget the history (after an autopilot reboot).
     pub fn reset(&mut self) {
-        self.eas = None;
+        self.eas_sensor = None;
+        self.eas_hud = None;
+        self.airspeed_unhealthy_us = None;
         self.vanes = None;
         self.vz = None;
         self.attitude = None;
         self.imu_seen_us = [None; 3];
-        self.airspeed_msg_us = None;
     }
 
     /// Note an IMU message of `priority` (0 = best) at `t_us`; `false` if a better one is
@@ -387,31 +423,40 @@ impl InputDecoder {
                 out.push(self.air(t_us, f64::from(m.press_abs) * 100.0, Some(temp_c))?);
                 Ok(())
             }
-            M::SCALED_PRESSURE2(m) => {
-                let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
-                let temp_c = f64::from(m.temperature) / 100.0;
-                out.push(self.air(t_us, f64::from(m.press_abs) * 100.0, Some(temp_c))?);
+            M::SCALED_PRESSURE2(_) => {
+                self.counters.second_baro_ignored += 1;
                 Ok(())
             }
             M::AIRSPEED(m) => {
                 let t_us = map(ApTime::Receipt).ok_or(Reject::Time)?;
-                self.eas = Some((t_us, check_airspeed(f64::from(m.airspeed))?));
-                self.airspeed_msg_us = Some(t_us);
+                if m.flags
+                    .contains(apm::AirspeedSensorFlags::AIRSPEED_SENSOR_UNHEALTHY)
+                {
+                    self.airspeed_unhealthy_us = Some(t_us);
+                    self.eas_sensor = None;
+                    return Err(Reject::AirspeedUnhealthy);
+                }
+                self.eas_sensor = Some((t_us, check_airspeed(f64::from(m.airspeed))?));
                 Ok(())
             }
             M::VFR_HUD(m) => {
                 let t_us = map(ApTime::Receipt).ok_or(Reject::Time)?;
-                // AIRSPEED (the sensor) is preferred while it streams.
+                // With the sensor unhealthy this is the autopilot's own estimate.
                 if self
-                    .airspeed_msg_us
-                    .is_some_and(|t| t_us.abs_diff(t) <= IMU_SOURCE_HOLD_US)
+                    .airspeed_unhealthy_us
+                    .is_some_and(|t| t_us.abs_diff(t) <= AIRSPEED_UNHEALTHY_HOLD_US)
                 {
-                    return Ok(());
+                    self.eas_hud = None;
+                    return Err(Reject::AirspeedUnhealthy);
                 }
-                self.eas = Some((t_us, check_airspeed(f64::from(m.airspeed))?));
+                self.eas_hud = Some((t_us, check_airspeed(f64::from(m.airspeed))?));
                 Ok(())
             }
             M::AOA_SSA(m) => {
+                if !self.cfg.aoa_ssa_is_vanes {
+                    self.counters.aoa_ssa_ignored += 1;
+                    return Ok(());
+                }
                 let t_us = map(ApTime::BootUs(m.time_usec)).ok_or(Reject::Time)?;
                 let (aoa, ssa) = (f64::from(m.AOA), f64::from(m.SSA));
                 finite(&[aoa, ssa])?;
@@ -442,7 +487,9 @@ impl InputDecoder {
                 } else {
                     ApTime::BootUs(m.time_usec)
                 };
-                let t_us = map(at).ok_or(Reject::Time)?;
+                let t_us = map(at)
+                    .ok_or(Reject::Time)?
+                    .saturating_sub(self.cfg.gnss_lag_us);
                 out.push(SensorEvent::Gnss(self.gnss(t_us, m)?));
                 Ok(())
             }
@@ -498,7 +545,14 @@ impl InputDecoder {
             return Err(Reject::OutOfRange);
         }
         let fresh = |t: u64| t_us.abs_diff(t) <= AIR_MAX_AGE_US;
-        let Some(eas) = self.eas.filter(|(t, _)| fresh(*t)).map(|(_, v)| v) else {
+        // The freshest airspeed; the sensor's on a tie.
+        let eas = [self.eas_sensor, self.eas_hud]
+            .into_iter()
+            .flatten()
+            .filter(|(t, _)| fresh(*t))
+            .min_by_key(|(t, _)| t_us.abs_diff(*t))
+            .map(|(_, v)| v);
+        let Some(eas) = eas else {
             return Err(Reject::NoAirspeed);
         };
         let (aoa_rad, aos_rad) = match self.vanes.filter(|(t, _, _)| fresh(*t)) {
@@ -534,7 +588,8 @@ impl InputDecoder {
             return Err(Reject::OutOfRange);
         }
         let h_m = if m.alt_ellipsoid != 0 {
-            self.undulation_m = Some(f64::from(m.alt_ellipsoid - m.alt) * 1e-3);
+            // Widened: the difference of two i32 fields overflows i32 for absurd values.
+            self.undulation_m = Some((f64::from(m.alt_ellipsoid) - f64::from(m.alt)) * 1e-3);
             f64::from(m.alt_ellipsoid) * 1e-3
         } else {
             self.counters.gnss_msl_height += 1;
@@ -611,6 +666,8 @@ mod tests {
             isa_delta_t_k: 0.0,
             raw_imu_is_scaled: false,
             default_sigma: (3.0, 5.0, 0.5),
+            aoa_ssa_is_vanes: true,
+            gnss_lag_us: 0,
         })
     }
 
@@ -642,6 +699,142 @@ mod tests {
             fields_updated: apm::HighresImuUpdatedFlags::from_bits_truncate(fields),
             id: 0,
         }
+    }
+
+    fn airspeed(cas_mps: f32, unhealthy: bool) -> apm::MavMessage {
+        apm::MavMessage::AIRSPEED(apm::AIRSPEED_DATA {
+            airspeed: cas_mps,
+            flags: if unhealthy {
+                apm::AirspeedSensorFlags::AIRSPEED_SENSOR_UNHEALTHY
+            } else {
+                apm::AirspeedSensorFlags::AIRSPEED_SENSOR_USING
+            },
+            ..Default::default()
+        })
+    }
+
+    /// Static pressure at sea level, stamped `t_ms` after boot.
+    fn pressure(t_ms: u32) -> apm::MavMessage {
+        apm::MavMessage::SCALED_PRESSURE(apm::SCALED_PRESSURE_DATA {
+            time_boot_ms: t_ms,
+            press_abs: 1013.25,
+            temperature: 1500,
+            ..Default::default()
+        })
+    }
+
+    /// The airspeed of the air-data event a pressure sample gives at receipt time `rx_us`.
+    fn tas_at(d: &mut InputDecoder, rx_us: u64) -> Option<f64> {
+        let mut at = |t: ApTime| {
+            Some(match t {
+                ApTime::BootUs(u) => u,
+                ApTime::BootMs(m) => u64::from(m) * 1000,
+                ApTime::Receipt => rx_us,
+            })
+        };
+        let ms = u32::try_from(rx_us / 1000).unwrap();
+        match d.decode(&pressure(ms), &mut at).first() {
+            Some(SensorEvent::Air(a)) => Some(a.tas_mps),
+            _ => None,
+        }
+    }
+
+    /// Decode `msg` as received at `rx_us`.
+    fn at(d: &mut InputDecoder, msg: &apm::MavMessage, rx_us: u64) -> Events {
+        d.decode(msg, &mut |t| {
+            Some(match t {
+                ApTime::BootUs(u) => u,
+                ApTime::BootMs(m) => u64::from(m) * 1000,
+                ApTime::Receipt => rx_us,
+            })
+        })
+    }
+
+    #[test]
+    fn the_freshest_airspeed_is_used_and_a_slow_airspeed_stream_does_not_hold_it() {
+        // ArduPilot: AIRSPEED at 1 Hz, VFR_HUD at 25 Hz. Sea level ISA: TAS = EAS.
+        let mut d = decoder();
+        at(&mut d, &airspeed(20.0, false), 1_000_000);
+        at(&mut d, &vfr(21.0), 1_040_000);
+        let tas = tas_at(&mut d, 1_050_000).unwrap();
+        assert!((tas - 21.0).abs() < 0.05, "{tas}");
+        at(&mut d, &airspeed(22.0, false), 1_060_000);
+        let tas = tas_at(&mut d, 1_070_000).unwrap();
+        assert!((tas - 22.0).abs() < 0.05, "{tas}");
+        // Nothing fresh (both older than AIR_MAX_AGE_US): no air-data event, counted.
+        assert_eq!(tas_at(&mut d, 1_700_000), None);
+        assert_eq!(d.counters().no_airspeed, 1);
+    }
+
+    #[test]
+    fn an_unhealthy_airspeed_sensor_also_silences_the_autopilots_synthetic_airspeed() {
+        let mut d = decoder();
+        at(&mut d, &airspeed(20.0, true), 1_000_000);
+        // VFR_HUD now carries the AHRS estimate (ground speed − wind): refused.
+        at(&mut d, &vfr(21.0), 1_040_000);
+        assert_eq!(tas_at(&mut d, 1_050_000), None);
+        assert_eq!(d.counters().airspeed_unhealthy, 2);
+        // Healthy again and the hold over: both are used again.
+        at(&mut d, &airspeed(20.0, false), 7_000_000);
+        at(&mut d, &vfr(21.0), 7_040_000);
+        let tas = tas_at(&mut d, 7_050_000).unwrap();
+        assert!((tas - 21.0).abs() < 0.05, "{tas}");
+    }
+
+    #[test]
+    fn aoa_ssa_is_ignored_unless_configured_as_vanes_and_a_second_baro_is_not_mixed_in() {
+        let mut d = InputDecoder::new(DecoderConfig {
+            aoa_ssa_is_vanes: false,
+            ..*decoder().config()
+        });
+        let aoa_ssa = apm::MavMessage::AOA_SSA(apm::AOA_SSA_DATA {
+            time_usec: 1_000_000,
+            AOA: 4.0,
+            SSA: -1.0,
+        });
+        at(&mut d, &aoa_ssa, 1_000_000);
+        at(&mut d, &airspeed(20.0, false), 1_000_000);
+        let ev = at(&mut d, &pressure(1_000), 1_000_000);
+        let SensorEvent::Air(air) = &ev[0] else {
+            panic!("{ev:?}")
+        };
+        assert_eq!((air.aoa_rad, air.aos_rad), (None, None));
+        assert_eq!(d.counters().aoa_ssa_ignored, 1);
+        let baro2 = apm::MavMessage::SCALED_PRESSURE2(apm::SCALED_PRESSURE2_DATA {
+            time_boot_ms: 1_010,
+            press_abs: 900.0,
+            temperature: 1500,
+            ..Default::default()
+        });
+        assert!(at(&mut d, &baro2, 1_010_000).is_empty());
+        assert_eq!(d.counters().second_baro_ignored, 1);
+    }
+
+    #[test]
+    fn a_gnss_fix_is_dated_the_receiver_lag_before_its_stamp_and_extreme_heights_do_not_overflow() {
+        let mut d = InputDecoder::new(DecoderConfig {
+            gnss_lag_us: 120_000,
+            ..*decoder().config()
+        });
+        let m = apm::GPS_RAW_INT_DATA {
+            time_usec: 2_000_000,
+            fix_type: apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
+            lat: 450_000_000,
+            lon: 10_000_000,
+            alt: i32::MIN,
+            alt_ellipsoid: i32::MAX,
+            vel: 2000,
+            cog: 0,
+            ..Default::default()
+        };
+        let ev = d.decode(&apm::MavMessage::GPS_RAW_INT(m), &mut map);
+        let SensorEvent::Gnss(fix) = &ev[0] else {
+            panic!("{ev:?}")
+        };
+        assert_eq!(fix.t_us, 1_880_000);
+        // (2³¹ − 1 + 2³¹) mm: computed without wrapping (the INS rejects the height itself).
+        let und = d.undulation_m().unwrap();
+        assert!((und - 4_294_967.295).abs() < 1e-6, "{und}");
     }
 
     fn vfr(airspeed: f32) -> apm::MavMessage {
@@ -699,13 +892,7 @@ mod tests {
             temperature: -2315, // 250 K − 273.15 → −23.15 °C
             ..Default::default()
         };
-        d.decode(
-            &apm::MavMessage::AIRSPEED(apm::AIRSPEED_DATA {
-                airspeed: 25.0,
-                ..Default::default()
-            }),
-            &mut map,
-        );
+        d.decode(&airspeed(25.0, false), &mut map);
         d.decode(
             &apm::MavMessage::AOA_SSA(apm::AOA_SSA_DATA {
                 time_usec: 1_000_000,
@@ -714,7 +901,7 @@ mod tests {
             }),
             &mut map,
         );
-        // A VFR_HUD airspeed while AIRSPEED streams is ignored.
+        // A VFR_HUD airspeed of the same age as AIRSPEED: the sensor's is used.
         d.decode(&vfr(99.0), &mut map);
         let ev = d.decode(&apm::MavMessage::SCALED_PRESSURE(m), &mut map);
         let SensorEvent::Air(air) = &ev[0] else {

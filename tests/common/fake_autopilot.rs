@@ -58,6 +58,19 @@ pub struct Ctl {
     pub gnss_off: bool,
     /// Vehicle time runs this many times faster than real time (0 or 1: real time).
     pub time_scale: u64,
+    /// IMU period in vehicle µs when non-zero (overrides `imu_per_tick`; 1_000_000: the 1 Hz
+    /// default RAW_IMU stream of ArduPilot).
+    pub imu_period_us: u64,
+    /// SET_MESSAGE_INTERVAL requests shorter than this are DENIED, µs (0: all accepted;
+    /// 25_000: ArduPlane at its 50 Hz loop).
+    pub min_interval_us: f32,
+    /// Report the daemon's last GPS_INPUT position in GPS_RAW_INT (an autopilot whose primary
+    /// receiver became the daemon's GPS_INPUT instance).
+    pub echo_gps_input: bool,
+    /// The last GPS_INPUT position received (lat, lon degE7).
+    pub last_gps_input: Option<(i32, i32)>,
+    /// Interval requests received: (message id, interval µs, accepted).
+    pub interval_requests: Vec<(u32, f32, bool)>,
     /// Messages sent, by kind.
     pub imu_sent: u64,
     pub gnss_sent: u64,
@@ -259,6 +272,40 @@ impl Fake {
                             let _ = sock.send_to(&f, daemon).await;
                         }
                     }
+                    if let apm::MavMessage::GPS_INPUT(g) = &msg {
+                        ctl.lock().unwrap().last_gps_input = Some((g.lat, g.lon));
+                    }
+                    // Acknowledge interval requests (accepted, or DENIED below the minimum
+                    // interval as ArduPlane does), unless silent.
+                    if let apm::MavMessage::COMMAND_LONG(c) = &msg
+                        && c.command == apm::MavCmd::MAV_CMD_SET_MESSAGE_INTERVAL
+                        && !ctl.lock().unwrap().silent
+                    {
+                        let accepted = {
+                            let mut k = ctl.lock().unwrap();
+                            let ok = c.param2 <= 0.0 || c.param2 >= k.min_interval_us;
+                            k.interval_requests.push((c.param1 as u32, c.param2, ok));
+                            ok
+                        };
+                        let ack = apm::MavMessage::COMMAND_ACK(apm::COMMAND_ACK_DATA {
+                            command: c.command,
+                            result: if accepted {
+                                apm::MavResult::MAV_RESULT_ACCEPTED
+                            } else {
+                                apm::MavResult::MAV_RESULT_DENIED
+                            },
+                            target_system: header.system_id as u8,
+                            target_component: header.component_id,
+                            ..Default::default()
+                        });
+                        let s = {
+                            let mut s = seq.lock().unwrap();
+                            *s = s.wrapping_add(1);
+                            *s
+                        };
+                        let f = frame_signed(&signing, 1, 1, s, &ack);
+                        let _ = sock.send_to(&f, daemon).await;
+                    }
                     rx.lock().unwrap().push(Rx {
                         at: Instant::now(),
                         header,
@@ -293,7 +340,7 @@ impl Fake {
             loop {
                 tick.tick().await;
                 k += 1;
-                let (per_tick, silent, gnss_off, scale) = {
+                let (per_tick, silent, gnss_off, scale, imu_period_us, echo) = {
                     let mut c = ctl.lock().unwrap();
                     if c.reboot {
                         c.reboot = false;
@@ -306,6 +353,8 @@ impl Fake {
                         c.silent,
                         c.gnss_off,
                         c.time_scale.max(1),
+                        c.imu_period_us,
+                        c.echo_gps_input.then_some(c.last_gps_input).flatten(),
                     )
                 };
                 if silent {
@@ -332,7 +381,11 @@ impl Fake {
                         .take_while(move |t| *t <= now_us)
                 };
                 let mut out: Vec<apm::MavMessage> = Vec::new();
-                let imu_period = 10_000 / u64::from(per_tick);
+                let imu_period = if imu_period_us > 0 {
+                    imu_period_us
+                } else {
+                    10_000 / u64::from(per_tick)
+                };
                 let mut n_imu = 0;
                 for t_us in grid(imu_period, 0) {
                     n_imu += 1;
@@ -391,8 +444,8 @@ impl Fake {
                         } else {
                             apm::GpsFixType::GPS_FIX_TYPE_3D_FIX
                         },
-                        lat: (pos.lat_rad.to_degrees() * 1e7).round() as i32,
-                        lon: (pos.lon_rad.to_degrees() * 1e7).round() as i32,
+                        lat: echo.map_or((pos.lat_rad.to_degrees() * 1e7).round() as i32, |e| e.0),
+                        lon: echo.map_or((pos.lon_rad.to_degrees() * 1e7).round() as i32, |e| e.1),
                         alt: ((H0_M - GEOID_M) * 1e3) as i32,
                         eph: 100,
                         epv: 150,
