@@ -218,8 +218,8 @@ class Gcs:
         t = m.get_type()
         if t == "GLOBAL_POSITION_INT":
             self.t_ms = max(self.t_ms, float(m.time_boot_ms))
-            if m.lat == 0 and m.lon == 0:
-                return  # no position estimate yet
+            if horiz_m(HOME[0], HOME[1], m.lat * 1e-7, m.lon * 1e-7) > 100e3:
+                return  # before the EKF has an origin: a position about (0, 0)
             self.ap.append((float(m.time_boot_ms), m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
         elif t == "SIM_STATE":
             lat = m.lat_int * 1e-7 if getattr(m, "lat_int", 0) else m.lat
@@ -622,10 +622,12 @@ def analyse(args, out, defn, gcs, router, completed, t_loss, t_cruise):
             link["gps_input_age_at_arrival_sim_ms_median"] = round(statistics.median(ages), 1)
         link["from_daemon"] = dict(sorted(router.from_daemon.items()))
         link["command_denials"] = [list(d) for d in router.denials]
-        link["statustext_serial1"] = [f"{t / 1000:.1f}s {x}" for t, x in router.statustext][:40]
+        with open(os.path.join(out, "statustext_serial1.txt"), "w") as f:
+            f.writelines(f"{t / 1000:.1f} s  {x}\n" for t, x in router.statustext)
     if gcs is not None:
         link["gps_raw_int_stamp_minus_truth_ms"] = round(gnss_lag_ms(gcs), 1)
-        link["statustext_serial0"] = [f"{t / 1000:.1f}s {x}" for t, x in gcs.texts][:60]
+        with open(os.path.join(out, "statustext.txt"), "w") as f:
+            f.writelines(f"{t / 1000:.1f} s  {x}\n" for t, x in gcs.texts)
     write_summary(os.path.join(out, "summary.toml"), s, err, rates, link)
     plot(os.path.join(out, "error.png"), rows, args)
     log(f"summary: {os.path.join(out, 'summary.toml')}")
@@ -642,7 +644,8 @@ def toml_value(v):
     if isinstance(v, float):
         if math.isnan(v) or math.isinf(v):
             return '"n/a"'
-        return f"{v:.4g}" if abs(v) < 1e5 else f"{v:.1f}"
+        t = f"{v:.4g}" if abs(v) < 1e5 else f"{v:.1f}"
+        return t if any(c in t for c in ".en") else t + ".0"  # stays a TOML float
     if isinstance(v, int):
         return str(v)
     if isinstance(v, (list, tuple)):

@@ -35,8 +35,8 @@ def main():
               for c in cps]
         f = s.get("frac_ianav_err_le_2p45_hacc")
         q = s.get("hacc_rms_over_err_rms")
-        r += [f"{f:.2f}" if isinstance(f, float) else "–",
-              f"{q:.2f}" if isinstance(q, float) else "–"]
+        r += [f"{f:.2f}" if isinstance(f, (int, float)) else "–",
+              f"{q:.2f}" if isinstance(q, (int, float)) else "–"]
         print("| " + " | ".join(r) + " |")
 
 
