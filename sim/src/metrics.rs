@@ -90,6 +90,22 @@ pub fn nees(truth: &TruthSample, sol: &InsSolution) -> Option<(f64, f64)> {
     Some((d_theta.dot(&(att * d_theta)), d_v.dot(&(vel * d_v))))
 }
 
+/// Normalised estimation error squared of the INS horizontal position: the north and east
+/// components of the error (local level frame at the truth) against the 2×2 horizontal block
+/// of the position covariance; χ²(2) when the filter is consistent. `None` for a covariance
+/// that cannot be inverted.
+pub fn nees_horizontal_position(truth: &TruthSample, sol: &InsSolution) -> Option<f64> {
+    let d = wgs84::ned_difference_m(&truth.pos, &sol.pos);
+    let e = nalgebra::Vector2::new(d.x, d.y);
+    let p = sol
+        .cov
+        .position_m2
+        .fixed_view::<2, 2>(0, 0)
+        .into_owned()
+        .try_inverse()?;
+    Some(e.dot(&(p * e)))
+}
+
 /// Observer collecting the NSE at mission times 0, 10, 20, … s (the first output sample at or
 /// after each grid time) and at the end of the flight.
 #[derive(Debug, Clone)]

@@ -180,10 +180,11 @@ pub struct PositionFilterConfig {
     /// turbulence (correlation time `L_u/V` ≈ 18 s) that a 3 s filter would freeze into the
     /// wind at GNSS loss; docs/INS.md §5.
     pub lpf_time_constant_s: f64,
-    /// Unmodelled error of the low-frequency wind estimate per horizontal axis (dominated by
-    /// the Pitot bias, which no filter estimates), added to the frozen wind's variance at
-    /// GNSS loss, m/s.
-    pub wind_bias_sigma_mps: f64,
+    /// Integral scales of the turbulence along the body axes `[x, y, z]`, m: its correlation
+    /// time is `scale / airspeed`. MIL-F-8785C Dryden above 2,000 ft: `L_u = 2 L_v = 2 L_w =
+    /// 1,750 ft`; the integral scale of the `u` spectrum is `L_u`, that of `v` and `w` is
+    /// `L/2`, so `[533.4, 133.35, 133.35]`. Used by the GNSS-denied covariance (docs/INS.md).
+    pub turbulence_integral_scale_m: [f64; 3],
     /// Slowly varying GNSS position error per axis (ionosphere) that the filter cannot
     /// average out, added to the reported position variance, to the altitude variance behind
     /// Δp and to the dead-reckoning start, m (author_impl §2.5: 8 m at the start of a run).
@@ -206,7 +207,7 @@ impl Default for PositionFilterConfig {
             gnss_max_consecutive_rejections: 5,
             gnss_max_lag_s: 0.5,
             lpf_time_constant_s: 60.0,
-            wind_bias_sigma_mps: 0.333,
+            turbulence_integral_scale_m: [533.4, 133.35, 133.35],
             gnss_bias_sigma_m: 8.0,
         }
     }
@@ -423,7 +424,9 @@ impl InsConfig {
         }
         non_negative("position.gnss_max_lag_s", p.gnss_max_lag_s)?;
         non_negative("position.lpf_time_constant_s", p.lpf_time_constant_s)?;
-        non_negative("position.wind_bias_sigma_mps", p.wind_bias_sigma_mps)?;
+        for l in p.turbulence_integral_scale_m {
+            positive("position.turbulence_integral_scale_m", l)?;
+        }
         non_negative("position.gnss_bias_sigma_m", p.gnss_bias_sigma_m)?;
         let g = &self.alignment;
         positive("alignment.ref_attitude_sigma_deg", g.ref_attitude_sigma_deg)?;

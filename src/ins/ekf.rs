@@ -147,6 +147,16 @@ where
     pub fn value(&self) -> T {
         self.y
     }
+
+    /// Time constant, s.
+    pub fn tau_s(&self) -> f64 {
+        self.tau_s
+    }
+
+    /// Time stepped so far, s.
+    pub fn elapsed_s(&self) -> f64 {
+        self.elapsed_s
+    }
 }
 
 #[cfg(test)]

@@ -316,7 +316,7 @@ pub struct InsStats {
 enum PositionMode {
     Gnss {
         filter: Box<GnssFilter>,
-        est: GnssPhaseEstimates,
+        est: Box<GnssPhaseEstimates>,
     },
     Denied(Box<DeniedNav>),
 }
@@ -585,6 +585,8 @@ impl Ins {
         let wind = gnss.v_n() - v_air;
         let est = GnssPhaseEstimates::new(
             cfg.position.lpf_time_constant_s,
+            cfg.position.turbulence_integral_scale_m,
+            &att.q_nb(),
             air.state()[air_data::HP],
             air.covariance()[(air_data::HP, air_data::HP)],
             gnss.pos().h_m,
@@ -609,7 +611,7 @@ impl Ins {
             att,
             position: PositionMode::Gnss {
                 filter: Box::new(gnss),
-                est,
+                est: Box::new(est),
             },
             prev,
             last_fix_us,
@@ -672,8 +674,13 @@ fn run_step(
         if since_fix_s > cfg.position.gnss_timeout_s
             || core.consecutive_gated >= cfg.position.gnss_max_consecutive_rejections
         {
-            core.position =
-                PositionMode::Denied(Box::new(DeniedNav::new(&cfg.position, filter, est)));
+            core.position = PositionMode::Denied(Box::new(DeniedNav::new(
+                &cfg.position,
+                &cfg.air,
+                core.air.state(),
+                filter,
+                est,
+            )));
             stats.gnss_denied_since_us = Some(step.t_us);
         }
     }
@@ -757,7 +764,7 @@ fn run_step(
                 if lag_s.abs() > cfg.position.gnss_max_lag_s {
                     stats.gnss_stale += 1;
                 } else {
-                    match filter.update_gnss(&cfg.position, fix, lag_s) {
+                    match filter.update_gnss(&cfg.position, fix, lag_s, &q_nb, &core.att.w_nb_b()) {
                         Ok(nis) => {
                             stats.gnss_fused += 1;
                             core.consecutive_gated = 0;
@@ -777,6 +784,8 @@ fn run_step(
             let p_air = core.air.covariance();
             est.step(
                 step.dt_s,
+                &q_nb,
+                core.air.state()[air_data::TAS],
                 hp_m,
                 p_air[(air_data::HP, air_data::HP)],
                 filter.pos().h_m,
@@ -809,6 +818,8 @@ fn run_step(
             );
             nav.propagate(
                 &cfg.position,
+                &q_nb,
+                core.air.state()[air_data::TAS],
                 &v_air,
                 &v_air_cov,
                 hp_m,

@@ -13,22 +13,23 @@
 //! term in `A_vv = −[2 w_ie + w_en]×`; `F = expm(AΔt)` is evaluated in closed form (series in
 //! `Ω = [2 w_ie + w_en]×` up to `Ω²`; error `O((|Ω|Δt)³)` ≈ 1e-18).
 //!
-//! **GNSS phase.** Every step `Δp = LPF_3s(Δp(ΔT̂, Ĥp, H(ĥ)))` and
-//! `v_lf = LPF_3s(v̂ − C_nb v_TAS^b(V̂, α̂, β̂))`, both initialised with their first raw value.
+//! **GNSS phase.** Every step `Δp = LPF(Δp(ΔT̂, Ĥp, H(ĥ)))` and
+//! `v_lf = LPF(v̂ − C_nb v_TAS^b(V̂, α̂, β̂))`, both initialised with their first raw value;
+//! the turbulence intensity from the raw wind's deviation from `v_lf`.
 //!
 //! **GNSS-denied.** The 6-state EKF `[f_ib_b, E_acc]` (`F = I`, `y = f̃`, `H = [I I]`) starts
 //! from the GNSS filter's blocks; Δp and the wind are frozen; `v_n = v_lf + C_nb v_TAS^b`;
 //! `h = h(Hp, ΔT̂, Δp)`; latitude and longitude are Euler-integrated with the previous step's
-//! radii. Covariances: velocity = frozen-wind covariance + the air-relative velocity's
-//! (attitude and air-data covariances mapped through `C_nb v_TAS^b`); horizontal position =
-//! the covariance of `[δp, δw]` with `δp' = δp + Δt (δw + δv_air)` (the frozen wind error is
-//! a random constant, so σ grows linearly); vertical = the barometric altitude's first-order
+//! radii. Covariances: velocity and horizontal position from the dead-reckoning error model
+//! `δv = δw + C_nb (δg + δb) + δv_air` (frozen-wind error, Gauss–Markov gust with the
+//! turbulence intensity measured while GNSS is available, air-velocity bias, white air-velocity
+//! error; [`DeniedNav`], docs/INS.md); vertical = the barometric altitude's first-order
 //! variance from `Hp`, `ΔT` and the frozen `Δp`.
 
 use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::air_data;
-use super::config::PositionFilterConfig;
+use super::config::{AirDataFilterConfig, PositionFilterConfig};
 use super::ekf::{self, LowPass, UpdateRejection};
 use crate::env::atmosphere::{self, AtmosphereOffsets};
 use crate::math::so3;
@@ -219,23 +220,52 @@ impl GnssFilter {
         Ok(())
     }
 
-    /// Slow update with a GNSS fix taken `lag_s` before the current step (the fix position
-    /// is moved forward by its own velocity), gated on the 6-D innovation. Returns the NIS.
+    /// NED acceleration of the process model, `C_nb f + g − (2 w_ie + w_en) × v`, m/s².
+    fn acceleration_n(&self, c_nb: &Matrix3<f64>, f_b: &Vector3<f64>) -> Vector3<f64> {
+        let w_ie = wgs84::omega_ie_n(self.pos.lat_rad);
+        let w_en = wgs84::omega_en_n(&self.pos, &self.v_n);
+        c_nb * f_b + wgs84::gravity_ned_mps2(&self.pos) - (w_ie * 2.0 + w_en).cross(&self.v_n)
+    }
+
+    /// A fix taken `lag_s` before the current step, moved forward to it: the velocity by the
+    /// INS's acceleration over the lag, the position by the fix's velocity and that
+    /// acceleration. The acceleration is taken at the middle of the lag: the specific force
+    /// is rotated back by half the body rotation (`f − (w_nb × f) lag/2`; in a 0.74 rad/s turn
+    /// at 2 g over 0.1 s the end-point value would be off by ≈ 0.08 m/s, the GNSS velocity σ).
+    /// Gravity is the bulk of `C_nb f` in level flight and must be added back; the Coriolis
+    /// term (≈ 4e-3 m/s² at 30 m/s) is kept as in the process model.
+    pub fn fix_at_step(
+        &self,
+        fix: &GnssFix,
+        lag_s: f64,
+        q_nb: &UnitQuaternion<f64>,
+        w_nb_b: &Vector3<f64>,
+    ) -> (Geodetic, Vector3<f64>) {
+        let c_nb = q_nb.to_rotation_matrix().into_inner();
+        let f_mid = self.f_b - w_nb_b.cross(&self.f_b) * (lag_s / 2.0);
+        let dv = self.acceleration_n(&c_nb, &f_mid) * lag_s;
+        let mut fix_pos = fix.pos;
+        let rates = wgs84::geodetic_rates(&fix.pos, &(fix.v_ned_mps + dv * 0.5));
+        fix_pos.lat_rad += rates.x * lag_s;
+        fix_pos.lon_rad += rates.y * lag_s;
+        fix_pos.h_m += rates.z * lag_s;
+        (fix_pos, fix.v_ned_mps + dv)
+    }
+
+    /// Slow update with a GNSS fix taken `lag_s` before the current step (moved forward to it
+    /// by [`GnssFilter::fix_at_step`] with the current attitude `q_nb` and body rate
+    /// `w_nb_b`), gated on the 6-D innovation. Returns the NIS.
     pub fn update_gnss(
         &mut self,
         cfg: &PositionFilterConfig,
         fix: &GnssFix,
         lag_s: f64,
+        q_nb: &UnitQuaternion<f64>,
+        w_nb_b: &Vector3<f64>,
     ) -> Result<f64, UpdateRejection> {
-        let mut fix_pos = fix.pos;
-        let rates = wgs84::geodetic_rates(&fix.pos, &fix.v_ned_mps);
-        fix_pos.lat_rad += rates.x * lag_s;
-        fix_pos.lon_rad += rates.y * lag_s;
-        fix_pos.h_m += rates.z * lag_s;
+        let (fix_pos, fix_v) = self.fix_at_step(fix, lag_s, q_nb, w_nb_b);
         let mut innov = SVector::<f64, 6>::zeros();
-        innov
-            .fixed_rows_mut::<3>(0)
-            .copy_from(&(fix.v_ned_mps - self.v_n));
+        innov.fixed_rows_mut::<3>(0).copy_from(&(fix_v - self.v_n));
         innov
             .fixed_rows_mut::<3>(3)
             .copy_from(&ned_offset_m(&self.pos, &fix_pos));
@@ -320,6 +350,24 @@ pub(crate) struct GnssPhaseEstimates {
     delta_p_var: LowPass<f64>,
     wind_n: LowPass<Vector3<f64>>,
     wind_cov: LowPass<Matrix3<f64>>,
+    /// `C_nb` through the same low-pass as the wind: the attitude at which the wind estimate
+    /// absorbed the air-data biases and the turbulence.
+    c_nb: LowPass<Matrix3<f64>>,
+    /// Running mean of the per-body-axis turbulence variance measured from the raw wind's
+    /// deviation from its low-pass, (m/s)².
+    gust_var_b: LowPass<Vector3<f64>>,
+    /// Turbulence integral scales along the body axes, m.
+    gust_scale_m: [f64; 3],
+}
+
+/// Do not measure the turbulence before the wind low-pass has averaged this long, s (its
+/// deviation is then a small, poorly known fraction of the gust).
+const GUST_MIN_AVERAGING_S: f64 = 10.0;
+
+/// Correlation time `L/V` of the turbulence of integral scale `scale_m`, s (airspeed floored
+/// at 1 m/s: at rest there is no flight through the field).
+fn gust_tau_s(scale_m: f64, tas_mps: f64) -> f64 {
+    scale_m / tas_mps.max(1.0)
 }
 
 /// Raw pressure offset from the GNSS-filter altitude and its first-order variance.
@@ -348,6 +396,8 @@ impl GnssPhaseEstimates {
     #[allow(clippy::too_many_arguments)]
     pub fn new(
         tau_s: f64,
+        gust_scale_m: [f64; 3],
+        q_nb: &UnitQuaternion<f64>,
         hp_m: f64,
         var_hp: f64,
         h_m: f64,
@@ -362,7 +412,41 @@ impl GnssPhaseEstimates {
             delta_p_var: LowPass::new(tau_s, dp_var),
             wind_n: LowPass::new(tau_s, wind_n),
             wind_cov: LowPass::new(tau_s, wind_cov),
+            c_nb: LowPass::new(tau_s, q_nb.to_rotation_matrix().into_inner()),
+            gust_var_b: LowPass::new(f64::INFINITY, Vector3::zeros()),
+            gust_scale_m,
         }
+    }
+
+    /// Effective time constant of the wind low-pass: while it is still a running mean over
+    /// the elapsed time `W` it averages an exponentially correlated input like a first-order
+    /// filter of `W/2` (same variance of the mean for `W ≫` the correlation time), s.
+    fn wind_tau_s(&self) -> f64 {
+        let tau = self.wind_n.tau_s();
+        let elapsed = self.wind_n.elapsed_s();
+        if elapsed < tau { elapsed / 2.0 } else { tau }
+    }
+
+    /// Turbulence seen while GNSS is available: per body axis its variance σ², and the
+    /// fraction `τ_c/(τ_c + τ_f)` of it that the wind low-pass holds (the variance of the
+    /// low-passed gust and its covariance with the current gust, for an exponentially
+    /// correlated gust of correlation time `τ_c` through a first-order filter `τ_f`).
+    pub fn gust(&self, tas_mps: f64) -> (Vector3<f64>, Vector3<f64>) {
+        let tau_f = self.wind_tau_s();
+        let held = Vector3::from_fn(|i, _| {
+            let tau_c = gust_tau_s(self.gust_scale_m[i], tas_mps);
+            if tau_f > 0.0 {
+                tau_c / (tau_c + tau_f)
+            } else {
+                1.0
+            }
+        });
+        (self.gust_var_b.value(), held)
+    }
+
+    /// Low-passed attitude `C_nb` (not orthonormal after turns).
+    pub fn c_nb_lpf(&self) -> Matrix3<f64> {
+        self.c_nb.value()
     }
 
     /// One step of `dt_s` with the raw inputs. Non-finite raw values are skipped (the filters
@@ -371,6 +455,8 @@ impl GnssPhaseEstimates {
     pub fn step(
         &mut self,
         dt_s: f64,
+        q_nb: &UnitQuaternion<f64>,
+        tas_mps: f64,
         hp_m: f64,
         var_hp: f64,
         h_m: f64,
@@ -384,9 +470,22 @@ impl GnssPhaseEstimates {
             self.delta_p_pa.step(dp, dt_s);
             self.delta_p_var.step(dp_var, dt_s);
         }
-        if wind_n.iter().chain(wind_cov.iter()).all(|v| v.is_finite()) {
+        if wind_n.iter().chain(wind_cov.iter()).all(|v| v.is_finite()) && tas_mps.is_finite() {
+            let c_nb = q_nb.to_rotation_matrix().into_inner();
             self.wind_n.step(wind_n, dt_s);
             self.wind_cov.step(wind_cov, dt_s);
+            self.c_nb.step(c_nb, dt_s);
+            // Turbulence: the raw wind's deviation from its low-pass, in body axes, has the
+            // variance σ² τ_f/(τ_c + τ_f) of an exponentially correlated gust.
+            let tau_f = self.wind_tau_s();
+            if self.wind_n.elapsed_s() >= GUST_MIN_AVERAGING_S {
+                let d_b = c_nb.transpose() * (wind_n - self.wind_n.value());
+                let var = Vector3::from_fn(|i, _| {
+                    let tau_c = gust_tau_s(self.gust_scale_m[i], tas_mps);
+                    d_b[i] * d_b[i] * (tau_c + tau_f) / tau_f
+                });
+                self.gust_var_b.step(var, dt_s);
+            }
         }
     }
 
@@ -432,7 +531,25 @@ pub(crate) fn baro_altitude(hp_m: f64, delta_t_k: f64, delta_p_pa: f64) -> (f64,
     (h, Vector3::new(d_dhp, d_dt, d_dp) * dh_dgeo)
 }
 
+/// Number of error states of the dead-reckoning covariance.
+const NDR: usize = 12;
+/// Offsets in it: NED position, frozen-wind error, gust (body), air-velocity bias (body).
+const DR_P: usize = 0;
+const DR_W: usize = 3;
+const DR_G: usize = 6;
+const DR_B: usize = 9;
+
 /// The GNSS-denied navigation (author_impl §1.7, variant 02B).
+///
+/// Velocity error model (docs/INS.md "GNSS-denied covariance"): with the estimate
+/// `v̂ = ŵ + Ĉ v̂_air` and the truth `v = w + C (v_air + v_gust)`,
+/// `δv = δw + C (δg + δb) + δv_air`: the frozen-wind error `δw` (a random constant), the gust
+/// the frozen wind cannot follow `δg = −v_gust` (body axes, first-order Gauss–Markov with
+/// the measured intensity and correlation time `L/V`), the air-velocity bias `δb` (Pitot and
+/// vane biases through `∂v_air/∂(V, α, β)`, constant in body axes) and the white remainder
+/// `δv_air` (attitude and air-data filter covariances). `δw` is correlated with `δg` (the
+/// low-pass holds part of the last gusts) and with `δb` (the wind estimate absorbed the
+/// bias at the low-passed attitude `C̄`: `δw ∋ −C̄ δb`).
 #[derive(Debug, Clone)]
 pub(crate) struct DeniedNav {
     /// 6-state EKF `[f_ib_b, E_acc]`.
@@ -442,30 +559,62 @@ pub(crate) struct DeniedNav {
     pos: Geodetic,
     v_n: Vector3<f64>,
     wind_n: Vector3<f64>,
-    wind_cov: Matrix3<f64>,
     delta_p_pa: f64,
     delta_p_var: f64,
-    /// Covariance of `[δp_NED, δw_NED]`; its down position block is replaced by the
-    /// barometric variance when reported.
-    p_pw: SMatrix<f64, 6, 6>,
+    /// Covariance of `[δp_NED, δw_NED, δg_b, δb_b]`; its down position block is replaced by
+    /// the barometric variance when reported.
+    p_dr: SMatrix<f64, NDR, NDR>,
+    /// Turbulence variance per body axis, (m/s)², and integral scales, m.
+    gust_var_b: Vector3<f64>,
+    gust_scale_m: [f64; 3],
     h_var: f64,
     v_cov: Matrix3<f64>,
 }
 
 impl DeniedNav {
     /// Switch from the GNSS phase: the 6-state EKF takes the GNSS filter's `[f, E_acc]` blocks,
-    /// the wind and Δp freeze at their low-pass values. The horizontal wind variance gets the
-    /// configured unmodelled error added.
-    pub fn new(cfg: &PositionFilterConfig, gnss: &GnssFilter, est: &GnssPhaseEstimates) -> Self {
-        let (wind_n, mut wind_cov) = est.wind();
-        let extra = cfg.wind_bias_sigma_mps.powi(2);
-        wind_cov[(0, 0)] += extra;
-        wind_cov[(1, 1)] += extra;
+    /// the wind and Δp freeze at their low-pass values; the dead-reckoning covariance starts
+    /// from the GNSS position covariance, the wind's, the measured turbulence and the
+    /// air-data bias σ's (`air_cfg`) at the current air state.
+    pub fn new(
+        cfg: &PositionFilterConfig,
+        air_cfg: &AirDataFilterConfig,
+        air_x: &SVector<f64, { air_data::NX }>,
+        gnss: &GnssFilter,
+        est: &GnssPhaseEstimates,
+    ) -> Self {
+        let (wind_n, wind_cov) = est.wind();
         let (delta_p_pa, delta_p_var) = est.delta_p();
-        let mut p_pw = SMatrix::<f64, 6, 6>::zeros();
-        p_pw.fixed_view_mut::<3, 3>(0, 0)
+        let tas = air_x[air_data::TAS];
+        let (_, j_air) = v_tas_b(tas, air_x[air_data::AOA], air_x[air_data::AOS]);
+        let bias_var = Matrix3::from_diagonal(&Vector3::new(
+            air_cfg.tas_bias_sigma_mps.powi(2),
+            air_cfg.aoa_bias_sigma_deg.to_radians().powi(2),
+            air_cfg.aos_bias_sigma_deg.to_radians().powi(2),
+        ));
+        let p_bb = j_air * bias_var * j_air.transpose();
+        let (gust_var_b, held) = est.gust(tas);
+        let p_wg = -est.c_nb_lpf() * Matrix3::from_diagonal(&gust_var_b.component_mul(&held));
+        let p_wb = -est.c_nb_lpf() * p_bb;
+        let c_bar = est.c_nb_lpf();
+        let p_ww = wind_cov
+            + c_bar
+                * (p_bb + Matrix3::from_diagonal(&gust_var_b.component_mul(&held)))
+                * c_bar.transpose();
+        let mut p_dr = SMatrix::<f64, NDR, NDR>::zeros();
+        p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P)
             .copy_from(&gnss.position_cov_with_bias(cfg));
-        p_pw.fixed_view_mut::<3, 3>(3, 3).copy_from(&wind_cov);
+        p_dr.fixed_view_mut::<3, 3>(DR_W, DR_W).copy_from(&p_ww);
+        p_dr.fixed_view_mut::<3, 3>(DR_G, DR_G)
+            .copy_from(&Matrix3::from_diagonal(&gust_var_b));
+        p_dr.fixed_view_mut::<3, 3>(DR_B, DR_B).copy_from(&p_bb);
+        p_dr.fixed_view_mut::<3, 3>(DR_W, DR_G).copy_from(&p_wg);
+        p_dr.fixed_view_mut::<3, 3>(DR_G, DR_W)
+            .copy_from(&p_wg.transpose());
+        p_dr.fixed_view_mut::<3, 3>(DR_W, DR_B).copy_from(&p_wb);
+        p_dr.fixed_view_mut::<3, 3>(DR_B, DR_W)
+            .copy_from(&p_wb.transpose());
+        ekf::symmetrize(&mut p_dr);
         Self {
             f_b: gnss.f_b,
             e_acc: gnss.e_acc,
@@ -473,10 +622,11 @@ impl DeniedNav {
             pos: gnss.pos,
             v_n: gnss.v_n,
             wind_n,
-            wind_cov,
             delta_p_pa,
             delta_p_var,
-            p_pw,
+            p_dr,
+            gust_var_b,
+            gust_scale_m: cfg.turbulence_integral_scale_m,
             h_var: gnss.p[(P + 2, P + 2)],
             v_cov: gnss.velocity_cov(),
         }
@@ -514,11 +664,13 @@ impl DeniedNav {
 
     /// Dead-reckoning step: ground velocity from the frozen wind and the air-relative
     /// velocity, altitude from the barometer, horizontal position integrated over `n_sub`
-    /// sub-steps of `dt_sub_s`.
+    /// sub-steps of `dt_sub_s`; `q_nb` and `tas_mps` map and time the gust and bias errors.
     #[allow(clippy::too_many_arguments)]
     pub fn propagate(
         &mut self,
         cfg: &PositionFilterConfig,
+        q_nb: &UnitQuaternion<f64>,
+        tas_mps: f64,
         v_air_n: &Vector3<f64>,
         v_air_cov: &Matrix3<f64>,
         hp_m: f64,
@@ -528,8 +680,8 @@ impl DeniedNav {
         n_sub: u32,
         q_scale_sub: f64,
     ) {
+        let c_nb = q_nb.to_rotation_matrix().into_inner();
         self.v_n = self.wind_n + v_air_n;
-        self.v_cov = self.wind_cov + v_air_cov;
         // Altitude: h(Hp, ΔT(T, Hp), Δp); ∂/∂T = ∂h/∂ΔT, ∂/∂Hp = ∂h/∂Hp − β_T ∂h/∂ΔT.
         let (h, d) = baro_altitude(hp_m, delta_t_k, self.delta_p_pa);
         let slope = if hp_m > atmosphere::HP_TROPOPAUSE_M {
@@ -548,24 +700,45 @@ impl DeniedNav {
             wgs84::radius_meridian_m(self.pos.lat_rad),
             wgs84::radius_prime_vertical_m(self.pos.lat_rad),
         );
-        let mut phi = SMatrix::<f64, 6, 6>::identity();
-        phi.fixed_view_mut::<3, 3>(0, 3).fill_with_identity();
-        phi.fixed_view_mut::<3, 3>(0, 3).scale_mut(dt_sub_s);
+        // δp' = δp + Δt (δw + C δg + C δb), δg' = a δg + noise (a = exp(−Δt V/L)).
+        let mut phi = SMatrix::<f64, NDR, NDR>::identity();
+        let mut q_g = Vector3::zeros();
+        if tas_mps.is_finite() {
+            for i in 0..3 {
+                let a = (-dt_sub_s / gust_tau_s(self.gust_scale_m[i], tas_mps)).exp();
+                phi[(DR_G + i, DR_G + i)] = a;
+                q_g[i] = self.gust_var_b[i] * (1.0 - a * a);
+            }
+        }
+        phi.fixed_view_mut::<3, 3>(DR_P, DR_W)
+            .copy_from(&(Matrix3::identity() * dt_sub_s));
+        phi.fixed_view_mut::<3, 3>(DR_P, DR_G)
+            .copy_from(&(c_nb * dt_sub_s));
+        phi.fixed_view_mut::<3, 3>(DR_P, DR_B)
+            .copy_from(&(c_nb * dt_sub_s));
+        let add = v_air_cov * (dt_sub_s * dt_sub_s);
         for _ in 0..n_sub {
             let lat = self.pos.lat_rad;
             self.pos.lat_rad += dt_sub_s * self.v_n.x / (m + self.pos.h_m);
             self.pos.lon_rad += dt_sub_s * self.v_n.y / ((n + self.pos.h_m) * lat.cos());
-            let mut p_new = phi * self.p_pw * phi.transpose();
-            let add = v_air_cov * (dt_sub_s * dt_sub_s);
+            let mut p_new = phi * self.p_dr * phi.transpose();
             for r in 0..3 {
                 for c in 0..3 {
-                    p_new[(r, c)] += add[(r, c)];
+                    p_new[(DR_P + r, DR_P + c)] += add[(r, c)];
                 }
-                p_new[(r, r)] += cfg.q_position_m2 * q_scale_sub;
+                p_new[(DR_P + r, DR_P + r)] += cfg.q_position_m2 * q_scale_sub;
+                p_new[(DR_G + r, DR_G + r)] += q_g[r];
             }
             ekf::symmetrize(&mut p_new);
-            self.p_pw = p_new;
+            self.p_dr = p_new;
         }
+        // δv = δw + C (δg + δb) + δv_air.
+        let mut hv = SMatrix::<f64, 3, NDR>::zeros();
+        hv.fixed_view_mut::<3, 3>(0, DR_W).fill_with_identity();
+        hv.fixed_view_mut::<3, 3>(0, DR_G).copy_from(&c_nb);
+        hv.fixed_view_mut::<3, 3>(0, DR_B).copy_from(&c_nb);
+        let v_cov = hv * self.p_dr * hv.transpose() + v_air_cov;
+        self.v_cov = (v_cov + v_cov.transpose()) * 0.5;
     }
 
     /// Geodetic position.
@@ -584,9 +757,12 @@ impl DeniedNav {
     pub fn e_acc(&self) -> Vector3<f64> {
         self.e_acc
     }
-    /// Frozen wind and its covariance.
+    /// Frozen wind and the covariance of its error.
     pub fn wind(&self) -> (Vector3<f64>, Matrix3<f64>) {
-        (self.wind_n, self.wind_cov)
+        (
+            self.wind_n,
+            self.p_dr.fixed_view::<3, 3>(DR_W, DR_W).into_owned(),
+        )
     }
     /// Frozen Δp and its variance.
     pub fn delta_p(&self) -> (f64, f64) {
@@ -597,7 +773,7 @@ impl DeniedNav {
     pub fn position_cov(&self) -> Matrix3<f64> {
         let mut c = Matrix3::zeros();
         c.fixed_view_mut::<2, 2>(0, 0)
-            .copy_from(&self.p_pw.fixed_view::<2, 2>(0, 0));
+            .copy_from(&self.p_dr.fixed_view::<2, 2>(DR_P, DR_P));
         c[(2, 2)] = self.h_var;
         c
     }
@@ -614,10 +790,10 @@ impl DeniedNav {
     pub fn accel_cov(&self) -> &SMatrix<f64, 6, 6> {
         &self.p6
     }
-    /// Covariance of `[δp_NED, δw_NED]` of the dead reckoning (tests).
+    /// Covariance of `[δp_NED, δw_NED, δg_b, δb_b]` of the dead reckoning (tests).
     #[cfg(test)]
-    pub fn dead_reckoning_cov(&self) -> &SMatrix<f64, 6, 6> {
-        &self.p_pw
+    pub fn dead_reckoning_cov(&self) -> &SMatrix<f64, NDR, NDR> {
+        &self.p_dr
     }
 }
 
@@ -748,5 +924,217 @@ mod tests {
         let back = ned_offset_m(&from, &p);
         // Second-order terms ≈ |d|²/R ≈ 1e4/6.4e6 ≈ 1.6e-3 m.
         assert!((back - d).norm() < 2e-3, "{back}");
+    }
+
+    /// Exponentially correlated (first-order Gauss–Markov) gusts along the body axes fed as
+    /// the raw wind: the measured per-axis variance is the gusts' σ².
+    #[test]
+    fn gust_intensity_is_measured_from_the_raw_wind() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
+        let mut normal = move || {
+            let u1: f64 = 1.0 - rng.random::<f64>();
+            let u2: f64 = rng.random::<f64>();
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let cfg = PositionFilterConfig::default();
+        let scale = cfg.turbulence_integral_scale_m;
+        let (tas, dt, t_end) = (30.0, 0.05, 20_000.0);
+        let sigma = Vector3::new(0.9, 0.6, 0.5);
+        let q_nb = so3::from_euler_zyx(2.0, 0.1, 0.3);
+        let c_nb = q_nb.to_rotation_matrix().into_inner();
+        let w0 = Vector3::new(5.0, -3.0, 0.0);
+        let mut est = GnssPhaseEstimates::new(
+            cfg.lpf_time_constant_s,
+            scale,
+            &q_nb,
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            w0,
+            Matrix3::identity() * 0.01,
+        );
+        let a = Vector3::from_fn(|i, _| (-dt * tas / scale[i]).exp());
+        let mut g = Vector3::from_fn(|i, _| sigma[i] * normal());
+        let steps = (t_end / dt) as usize;
+        for _ in 0..steps {
+            for i in 0..3 {
+                g[i] = a[i] * g[i] + sigma[i] * (1.0 - a[i] * a[i]).sqrt() * normal();
+            }
+            let wind = w0 + c_nb * g;
+            est.step(
+                dt,
+                &q_nb,
+                tas,
+                2000.0,
+                1.0,
+                2100.0,
+                1.0,
+                5.0,
+                wind,
+                Matrix3::identity() * 0.01,
+            );
+        }
+        let (var, held) = est.gust(tas);
+        for i in 0..3 {
+            let tau_c = scale[i] / tas;
+            // Time average of a squared Gauss–Markov process: relative σ √(2 τ_c / T);
+            // 5 of them.
+            let tol = 5.0 * (2.0 * tau_c / t_end).sqrt();
+            let rel = var[i] / (sigma[i] * sigma[i]) - 1.0;
+            assert!(
+                rel.abs() < tol,
+                "axis {i}: {} vs {} ({rel:+.3}, tol {tol:.3})",
+                var[i],
+                sigma[i] * sigma[i]
+            );
+            let expect = tau_c / (tau_c + cfg.lpf_time_constant_s);
+            assert!((held[i] - expect).abs() < 1e-12, "{i}");
+        }
+    }
+
+    /// With only the gust uncertain, the dead-reckoning position variance along a straight
+    /// leg is that of an integrated Gauss–Markov process, `2σ²τ (T − τ (1 − e^{−T/τ}))`, and
+    /// the velocity variance stays σ².
+    #[test]
+    fn dead_reckoning_integrates_the_gust_as_a_gauss_markov_process() {
+        let cfg = PositionFilterConfig {
+            q_position_m2: 0.0,
+            ..PositionFilterConfig::default()
+        };
+        let mut f = GnssFilter::new(&cfg, &init());
+        f.p = SMatrix::zeros();
+        let est = GnssPhaseEstimates::new(
+            cfg.lpf_time_constant_s,
+            cfg.turbulence_integral_scale_m,
+            &UnitQuaternion::identity(),
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            Vector3::zeros(),
+            Matrix3::zeros(),
+        );
+        let air_cfg = AirDataFilterConfig {
+            tas_bias_sigma_mps: 0.0,
+            aoa_bias_sigma_deg: 0.0,
+            aos_bias_sigma_deg: 0.0,
+            ..AirDataFilterConfig::default()
+        };
+        let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
+        air_x[air_data::TAS] = 30.0;
+        let mut nav = DeniedNav::new(&cfg, &air_cfg, &air_x, &f, &est);
+        let sigma2 = Vector3::new(0.81, 0.36, 0.25);
+        nav.gust_var_b = sigma2;
+        nav.p_dr = SMatrix::zeros();
+        nav.p_dr
+            .fixed_view_mut::<3, 3>(DR_G, DR_G)
+            .copy_from(&Matrix3::from_diagonal(&sigma2));
+        // Heading 90°: body x is east, body y is south.
+        let q_nb = so3::from_euler_zyx(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
+        let (dt, t_end) = (0.01, 200.0);
+        for _ in 0..(t_end / dt) as usize {
+            nav.propagate(
+                &cfg,
+                &q_nb,
+                30.0,
+                &Vector3::new(0.0, 30.0, 0.0),
+                &Matrix3::zeros(),
+                2000.0,
+                5.0,
+                &nalgebra::Matrix2::identity(),
+                dt,
+                1,
+                1.0,
+            );
+        }
+        let p = nav.position_cov();
+        let gm = |s2: f64, tau: f64| 2.0 * s2 * tau * (t_end - tau * (1.0 - (-t_end / tau).exp()));
+        let scale = cfg.turbulence_integral_scale_m;
+        let east = gm(sigma2.x, scale[0] / 30.0);
+        let north = gm(sigma2.y, scale[1] / 30.0);
+        // Discretisation: the position is integrated with the start-of-step gust, a relative
+        // error of order Δt/τ ≤ 0.01/4.4.
+        assert!(
+            (p[(1, 1)] / east - 1.0).abs() < 5e-3,
+            "{} {east}",
+            p[(1, 1)]
+        );
+        assert!(
+            (p[(0, 0)] / north - 1.0).abs() < 5e-3,
+            "{} {north}",
+            p[(0, 0)]
+        );
+        assert!(p[(0, 1)].abs() < 1e-9 * east);
+        let v = nav.velocity_cov();
+        assert!((v[(1, 1)] / sigma2.x - 1.0).abs() < 1e-9, "{}", v[(1, 1)]);
+        assert!((v[(0, 0)] / sigma2.y - 1.0).abs() < 1e-9, "{}", v[(0, 0)]);
+        assert!((v[(2, 2)] / sigma2.z - 1.0).abs() < 1e-9, "{}", v[(2, 2)]);
+    }
+
+    /// A fix 0.1 s old in a 0.74 rad/s level turn at 30 m/s (2.3 g): moved forward with the
+    /// INS's acceleration its velocity matches the current one within 0.01 m/s (third-order
+    /// term a·ω²·lag³/6 ≈ 2e-3 m/s), while the raw fix velocity is 2.2 m/s off — 30 times the
+    /// GNSS velocity σ, which would gate the fix.
+    #[test]
+    fn lagged_fix_velocity_is_moved_forward_with_the_ins_acceleration() {
+        let cfg = PositionFilterConfig::default();
+        let (tas, omega, lag) = (30.0, 0.74, 0.1);
+        let psi = 0.6;
+        let pos = init().pos;
+        let v_at = |psi: f64| Vector3::new(tas * psi.cos(), tas * psi.sin(), 0.0);
+        let v_now = v_at(psi);
+        let a_n = Vector3::new(-psi.sin(), psi.cos(), 0.0) * (tas * omega);
+        let g_n = wgs84::gravity_ned_mps2(&pos);
+        let bank = (tas * omega / g_n.z).atan();
+        let q_nb = so3::from_euler_zyx(psi, 0.0, bank);
+        let c_nb = q_nb.to_rotation_matrix().into_inner();
+        let coriolis =
+            (wgs84::omega_ie_n(pos.lat_rad) * 2.0 + wgs84::omega_en_n(&pos, &v_now)).cross(&v_now);
+        let f_b = c_nb.transpose() * (a_n - g_n + coriolis);
+        let w_nb_b = c_nb.transpose() * Vector3::new(0.0, 0.0, omega);
+        let mut filter = GnssFilter::new(
+            &cfg,
+            &PositionInit {
+                pos,
+                v_n: v_now,
+                f_b,
+                e_acc: Vector3::zeros(),
+                e_acc_sigma: Vector3::repeat(1e-3),
+            },
+        );
+        // The fix: where the aircraft was `lag` earlier on the circle.
+        let psi_fix = psi - omega * lag;
+        let chord =
+            Vector3::new(psi.sin() - psi_fix.sin(), psi_fix.cos() - psi.cos(), 0.0) * (tas / omega);
+        let mut fix_pos = pos;
+        displace(&mut fix_pos, &(-chord));
+        let fix = GnssFix {
+            t_us: 0,
+            pos: fix_pos,
+            v_ned_mps: v_at(psi_fix),
+            sigma_hor_m: f64::NAN,
+            sigma_ver_m: f64::NAN,
+            sigma_vel_mps: f64::NAN,
+        };
+        let raw = (fix.v_ned_mps - v_now).norm();
+        assert!(raw > 2.0, "{raw}");
+        let (p, v) = filter.fix_at_step(&fix, lag, &q_nb, &w_nb_b);
+        assert!((v - v_now).norm() < 0.01, "{}", (v - v_now).norm());
+        assert!(
+            ned_offset_m(&pos, &p).norm() < 0.01,
+            "{}",
+            ned_offset_m(&pos, &p)
+        );
+        // Without the compensation the velocity alone gives a NIS far beyond the gate.
+        let s_vel = filter.velocity_cov()[(0, 0)] + cfg.gnss_sigma_vel_mps.powi(2);
+        assert!(raw * raw / s_vel > 10.0 * cfg.gnss_gate_chi2);
+        let nis = filter
+            .update_gnss(&cfg, &fix, lag, &q_nb, &w_nb_b)
+            .expect("fused");
+        assert!(nis < 0.1, "{nis}");
     }
 }
