@@ -200,12 +200,17 @@ class Gcs:
         self.gps2_raw = []
         self.mission_seq = 0
         self.armed = False
+        self.custom_mode = -1
         self.acks = []
         self.texts = []
         self.params = {}
         self.last_hb = 0.0
+        self.watch = []  # processes that must stay alive (SITL, daemon)
 
     def pump(self, timeout=0.1):
+        for p in self.watch:
+            if p.poll() is not None:
+                raise RuntimeError(f"{os.path.basename(p.args[0])} exited ({p.returncode})")
         m = self.c.recv_match(blocking=True, timeout=timeout)
         while m is not None:
             self._handle(m)
@@ -238,6 +243,7 @@ class Gcs:
             self.mission_seq = m.seq
         elif t == "HEARTBEAT" and m.get_srcComponent() == 1:
             self.armed = bool(m.base_mode & mav.MAV_MODE_FLAG_SAFETY_ARMED)
+            self.custom_mode = m.custom_mode
         elif t == "COMMAND_ACK":
             self.acks.append((m.command, m.result))
         elif t == "STATUSTEXT":
@@ -384,6 +390,7 @@ def fly(args):
                 time.sleep(0.5)
         if gcs is None:
             raise RuntimeError("SITL SERIAL0 never accepted a connection")
+        gcs.watch.append(sitl)
         gcs.wait(lambda: gcs.c.target_system > 0, 60, "SITL heartbeat")
         for mid, hz in ((33, 10), (108, 10), (24, 5), (124, 5), (42, 2)):
             gcs.interval(mid, hz)
@@ -397,13 +404,22 @@ def fly(args):
             daemon = subprocess.Popen([args.ianav, "run", "--config", dcfg], stdout=dlog,
                                       stderr=subprocess.STDOUT, start_new_session=True)
             procs.append(daemon)
+            gcs.watch.append(daemon)
             router.start()
         gcs.wait(lambda: gcs.t_ms > 1000, 60, "GLOBAL_POSITION_INT")
         gcs.upload_mission(mission_items(defn))
         log("mission uploaded")
-        gcs.c.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0,
-                                    mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PLANE_MODE_AUTO,
-                                    0, 0, 0, 0, 0)
+        # AUTO, confirmed by the HEARTBEAT (a lost command left the plane armed in MANUAL).
+        t_mode = time.monotonic() + 60
+        while gcs.custom_mode != PLANE_MODE_AUTO:
+            if time.monotonic() > t_mode:
+                raise TimeoutError("mode AUTO")
+            gcs.c.mav.command_long_send(1, 1, mav.MAV_CMD_DO_SET_MODE, 0,
+                                        mav.MAV_MODE_FLAG_CUSTOM_MODE_ENABLED, PLANE_MODE_AUTO,
+                                        0, 0, 0, 0, 0)
+            t_end = time.monotonic() + 1.0
+            while time.monotonic() < t_end and gcs.custom_mode != PLANE_MODE_AUTO:
+                gcs.pump()
         # Arm once the pre-arm checks pass (EKF and GPS ready); retry every 5 s of sim time.
         t_try = -1e9
         end = time.monotonic() + 300
@@ -417,7 +433,12 @@ def fly(args):
                 t_try = gcs.t_ms
         t_arm = gcs.t_ms
         log(f"armed at {t_arm / 1000:.1f} s")
-        gcs.wait(lambda: gcs.mission_seq >= 2, 400, "take-off complete")
+        def took_off():
+            if gcs.t_ms - t_arm > 150e3:
+                raise RuntimeError("take-off not complete 150 s after arming")
+            return gcs.mission_seq >= 2
+
+        gcs.wait(took_off, 400, "take-off complete")
         t_cruise = gcs.t_ms
         log(f"cruising at {t_cruise / 1000:.1f} s")
         gcs.wait(lambda: gcs.t_ms >= t_cruise + args.cruise_s * 1000, 1200, "cruise")

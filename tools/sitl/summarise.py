@@ -29,7 +29,7 @@ def main():
     print("|" + "---|" * len(head))
     for name, s in rows:
         e = s.get("error", {})
-        r = [name, s["mode"], f"{s['wind_dir_deg']}°", "yes" if s["completed"] else "NO"]
+        r = [name, s["mode"], f"{s['wind_dir_deg']:g}°", "yes" if s["completed"] else "NO"]
         r += [cell(e.get(c, {}).get("ap_err_h_m")) for c in cps]
         r += [cell(e.get(c, {}).get("ianav_err_h_m")) if s["mode"] != "alone" else "–"
               for c in cps]
