@@ -386,7 +386,8 @@ async fn handle_raw(
         }
         if let SensorEvent::Gnss(fix) = &ev {
             let e7 = |rad: f64| (rad.to_degrees() * 1e7).round() as i64;
-            if shared.state(|s| s.is_echo(e7(fix.pos.lat_rad), e7(fix.pos.lon_rad))) {
+            let h_acc_mm = (fix.sigma_hor_m * 1e3).round() as i64;
+            if shared.state(|s| s.is_echo(e7(fix.pos.lat_rad), e7(fix.pos.lon_rad), h_acc_mm)) {
                 let first = shared.count(|c| {
                     c.gnss_echo += 1;
                     c.gnss_echo == 1

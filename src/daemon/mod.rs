@@ -225,29 +225,33 @@ pub struct State {
     pub interval_acks: Vec<apm::MavResult>,
     /// Rates the autopilot accepted in the current negotiation (message id, Hz).
     pub granted_intervals: Vec<(u32, f64)>,
-    /// Positions (lat, lon, degE7) of the last [`ECHO_MEMORY`] GPS_INPUTs sent: a GNSS fix
-    /// carrying one of them is our own output reported back, never a measurement.
-    pub sent_positions: std::collections::VecDeque<(i32, i32)>,
+    /// Position (lat, lon, degE7) and horizontal accuracy (mm) of the last [`ECHO_MEMORY`]
+    /// GPS_INPUTs sent: a GNSS fix carrying one of them is our own output reported back,
+    /// never a measurement.
+    pub sent_positions: std::collections::VecDeque<(i32, i32, u32)>,
 }
 
 /// GPS_INPUTs remembered for echo detection (10 s at 5 Hz, 2.5 s at 20 Hz).
 pub const ECHO_MEMORY: usize = 50;
 
 impl State {
-    /// Remember a GPS_INPUT position.
-    pub fn remember_sent(&mut self, lat_e7: i32, lon_e7: i32) {
+    /// Remember a GPS_INPUT position and its horizontal accuracy.
+    pub fn remember_sent(&mut self, lat_e7: i32, lon_e7: i32, h_acc_mm: u32) {
         if self.sent_positions.len() >= ECHO_MEMORY {
             self.sent_positions.pop_front();
         }
-        self.sent_positions.push_back((lat_e7, lon_e7));
+        self.sent_positions.push_back((lat_e7, lon_e7, h_acc_mm));
     }
 
-    /// Whether a fix at (lat, lon) degE7 is one of our own GPS_INPUTs (an autopilot that made
-    /// our GPS_INPUT instance its primary receiver reports it in GPS_RAW_INT).
-    pub fn is_echo(&self, lat_e7: i64, lon_e7: i64) -> bool {
-        self.sent_positions
-            .iter()
-            .any(|(a, o)| i64::from(*a) == lat_e7 && i64::from(*o) == lon_e7)
+    /// Whether a fix at (lat, lon) degE7 with horizontal accuracy `h_acc_mm` is one of our own
+    /// GPS_INPUTs (an autopilot that made our GPS_INPUT instance its primary receiver reports
+    /// it in GPS_RAW_INT, accuracy included). Position alone is not enough: at rest the INS
+    /// converges onto the receiver's fix to the centimetre (seen beside ArduPlane SITL on the
+    /// ground), but a receiver's accuracy does not equal our DRMS to the millimetre.
+    pub fn is_echo(&self, lat_e7: i64, lon_e7: i64, h_acc_mm: i64) -> bool {
+        self.sent_positions.iter().any(|(a, o, h)| {
+            i64::from(*a) == lat_e7 && i64::from(*o) == lon_e7 && i64::from(*h) == h_acc_mm
+        })
     }
 }
 
@@ -682,6 +686,20 @@ pub fn log_counters(c: &Counters) {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn an_echo_needs_our_position_and_our_accuracy() {
+        let mut st = State::default();
+        for k in 0..(ECHO_MEMORY as i32 + 5) {
+            st.remember_sent(450_000_000 + k, 10_000_000, 2_500);
+        }
+        // Our output reported back, accuracy included.
+        assert!(st.is_echo(450_000_010, 10_000_000, 2_500));
+        // At rest the receiver's fix equals our position to the centimetre, not our accuracy.
+        assert!(!st.is_echo(450_000_010, 10_000_000, 1_000));
+        // Forgotten after ECHO_MEMORY newer ones.
+        assert!(!st.is_echo(450_000_000, 10_000_000, 2_500));
+    }
 
     /// The memory bound stated in docs/DAEMON.md: queue capacities × element sizes.
     #[test]

@@ -109,7 +109,10 @@ impl Publisher {
                     undulation_m,
                 };
                 let g = mavlink_out::gps_input(sol, &s, t_us, self.clock.unix_us(t_us));
-                self.shared.state(|st| st.remember_sent(g.lat, g.lon));
+                // As the autopilot would report it back: h_acc in whole mm.
+                let h_acc_mm = (f64::from(g.horiz_accuracy) * 1e3).round() as u32;
+                self.shared
+                    .state(|st| st.remember_sent(g.lat, g.lon, h_acc_mm));
                 apm::MavMessage::GPS_INPUT(g)
             }
             OutputMode::Odometry | OutputMode::VisionPositionEstimate | OutputMode::Auto => {

@@ -67,8 +67,8 @@ pub struct Ctl {
     /// Report the daemon's last GPS_INPUT position in GPS_RAW_INT (an autopilot whose primary
     /// receiver became the daemon's GPS_INPUT instance).
     pub echo_gps_input: bool,
-    /// The last GPS_INPUT position received (lat, lon degE7).
-    pub last_gps_input: Option<(i32, i32)>,
+    /// The last GPS_INPUT received (lat, lon degE7, horizontal accuracy mm).
+    pub last_gps_input: Option<(i32, i32, u32)>,
     /// Interval requests received: (message id, interval µs, accepted).
     pub interval_requests: Vec<(u32, f32, bool)>,
     /// Messages sent, by kind.
@@ -273,7 +273,8 @@ impl Fake {
                         }
                     }
                     if let apm::MavMessage::GPS_INPUT(g) = &msg {
-                        ctl.lock().unwrap().last_gps_input = Some((g.lat, g.lon));
+                        ctl.lock().unwrap().last_gps_input =
+                            Some((g.lat, g.lon, (g.horiz_accuracy * 1e3).round() as u32));
                     }
                     // Acknowledge interval requests (accepted, or DENIED below the minimum
                     // interval as ArduPlane does), unless silent.
@@ -453,7 +454,7 @@ impl Fake {
                         cog: 0,
                         satellites_visible: 12,
                         alt_ellipsoid: (H0_M * 1e3) as i32,
-                        h_acc: 1_000,
+                        h_acc: echo.map_or(1_000, |e| e.2),
                         v_acc: 1_500,
                         vel_acc: 200,
                         hdg_acc: 0,
