@@ -11,9 +11,9 @@ mod common;
 
 use std::time::{Duration, Instant};
 
+use common::daemon_run::{start, stop};
 use common::fake_autopilot::{self as fa, Fake, Rx, wait_for};
 use ianav::config::DaemonConfig;
-use ianav::daemon::{self, Counters, Handle};
 use mavlink::MavlinkVersion;
 use mavlink::dialects::ardupilotmega as apm;
 
@@ -26,31 +26,6 @@ fn config(port: u16, extra: &str) -> DaemonConfig {
          [logging]\ncounters_period_s = 0.0\n{extra}"
     );
     DaemonConfig::from_toml_str(&text, None).unwrap()
-}
-
-async fn start(
-    cfg: DaemonConfig,
-) -> (
-    Handle,
-    tokio::task::JoinHandle<Result<(), daemon::DaemonError>>,
-) {
-    let (tx, rx) = tokio::sync::oneshot::channel();
-    let task = tokio::spawn(daemon::run(cfg, Some(tx)));
-    (rx.await.unwrap(), task)
-}
-
-async fn stop(
-    h: Handle,
-    task: tokio::task::JoinHandle<Result<(), daemon::DaemonError>>,
-) -> Counters {
-    let c = h.shared.counters();
-    h.stop();
-    tokio::time::timeout(Duration::from_secs(5), task)
-        .await
-        .expect("daemon stops within 5 s")
-        .expect("daemon task did not panic")
-        .expect("daemon ran without error");
-    c
 }
 
 fn is_odometry(r: &Rx) -> bool {

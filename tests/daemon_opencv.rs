@@ -9,9 +9,10 @@ mod common;
 
 use std::time::Duration;
 
+use common::daemon_run::{start, stop};
 use common::fake_autopilot::{self as fa, wait_for};
 use ianav::config::DaemonConfig;
-use ianav::daemon::{self, Counters, Handle};
+use ianav::daemon::Counters;
 
 fn config(port: u16, camera: &str) -> DaemonConfig {
     let text = format!(
@@ -24,18 +25,9 @@ fn config(port: u16, camera: &str) -> DaemonConfig {
 }
 
 async fn run_for(cfg: DaemonConfig, until: impl Fn(&Counters) -> bool) -> (bool, Counters) {
-    let (tx, rx) = tokio::sync::oneshot::channel();
-    let task = tokio::spawn(daemon::run(cfg, Some(tx)));
-    let h: Handle = rx.await.unwrap();
+    let (h, task) = start(cfg).await;
     let reached = wait_for(Duration::from_secs(10), || until(&h.shared.counters())).await;
-    let c = h.shared.counters();
-    h.stop();
-    tokio::time::timeout(Duration::from_secs(5), task)
-        .await
-        .expect("daemon stops within 5 s")
-        .expect("daemon task did not panic")
-        .expect("daemon ran without error");
-    (reached, c)
+    (reached, stop(h, task).await)
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
