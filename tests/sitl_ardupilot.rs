@@ -1,4 +1,4 @@
-//! The daemon beside a real ArduPlane SITL (issue 13): `tools/sitl/ardupilot_flight.py
+//! The daemon beside a real ArduPlane SITL: `tools/sitl/ardupilot_flight.py
 //! --short --mode open` flies take-off, 60 s of cruise with GNSS, then 120 s without, and the
 //! test checks its summary.
 //!
@@ -14,7 +14,7 @@ use std::process::Command;
 /// GNSS-level position (≤ 10 m with the SITL receiver) and a wind estimate; after it, it dead
 /// reckons on airspeed, heading and that wind. A wind error of half the simulated 6 m/s wind
 /// (3 m/s) or a 2° heading error at 22 m/s (0.8 m/s) integrates to at most 3 m/s × t: a
-/// diverging INS (the 1 Hz IMU fallback: 650 m at 1 min, issue 13) fails it.
+/// diverging INS (the 1 Hz IMU fallback: 650 m at 1 min) fails it.
 fn error_bound_m(t_s: f64) -> f64 {
     20.0 + 3.0 * t_s
 }

@@ -1,4 +1,4 @@
-//! Consistency of the INS covariances (issue 3 and issue 13 acceptance): the normalised
+//! Consistency of the INS covariances: the normalised
 //! estimation error squared (NEES), averaged over a 20-run sample of scenario #2 flown on the
 //! INS, stays within the two-sided 95% χ² band of the mean
 //!

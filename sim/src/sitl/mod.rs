@@ -5,7 +5,7 @@
 //! - [`vehicle`]: the flight seen through an autopilot's MAVLink interface (synchronous,
 //!   transport-free).
 //! - [`streams`]: ArduPilot's, PX4 v1.16's and the `ideal` vehicle's message scheduling and
-//!   interval requests (issue 13: as the real autopilots behave).
+//!   interval requests (as the real autopilots behave).
 //! - [`convert`]: SI ↔ MAVLink units.
 //! - [`frames`]: the camera frame stream server.
 //! - [`timesync`]: the vehicle's TIMESYNC requests and its map of the companion's clock.

@@ -12,7 +12,7 @@
 //! estimate its guidance flies on: the vehicle's own INS (the simulator's EKF, with its
 //! realistic errors), or, after GNSS loss, the companion's horizontal position (item 7).
 //!
-//! Message content follows the imitated autopilot (issue 13; `docs/SITL.md` has the
+//! Message content follows the imitated autopilot (`docs/SITL.md` has the
 //! side-by-side table): **ArduPilot** sends the latest IMU sample as `float × 1000` truncated
 //! to int16, optionally with SITL's gyro drift triangle added; AOA_SSA computed as ArduPlane's AHRS does,
 //! from the vehicle's own velocity, wind and attitude estimates (not a vane, so it feeds the
