@@ -1,5 +1,6 @@
-//! The daemon against a fake autopilot that behaves as the real ones did beside it (docs/ARDUPILOT.md "What went wrong before"): an interval request DENIED as too fast, an IMU
-//! stream left at its 1 Hz default, and the daemon's own GPS_INPUT reported back as the
+//! The daemon against a fake autopilot that behaves as the real ones did beside it
+//! (docs/ARDUPILOT.md "What went wrong before"): an interval request DENIED as too fast, an
+//! IMU stream left at its 1 Hz default, and the daemon's own GPS_INPUT reported back as the
 //! autopilot's GNSS. Loopback UDP only; every wait is bounded.
 
 #![allow(clippy::unwrap_used)]
