@@ -28,6 +28,15 @@ const CLIENT: MavHeader = MavHeader {
     sequence: 0,
 };
 
+/// The vehicle of `autopilot` that keeps flying on its own navigation after GNSS loss (these
+/// tests have no companion whose position it could fly on).
+fn own_navigation(autopilot: Autopilot) -> VehicleConfig {
+    VehicleConfig {
+        fly_on_estimates: false,
+        ..VehicleConfig::for_autopilot(autopilot)
+    }
+}
+
 fn short_setup(warmup_s: f64, loss_s: f64, duration_s: f64) -> FlightSetup {
     let mut setup = FlightSetup::builtin(2).unwrap();
     setup.scenario.warmup_s = warmup_s;
@@ -509,9 +518,8 @@ fn ardupilot_messages_carry_arduplane_semantics() {
     let setup = short_setup(2.0, 100.0, 10.0);
     let tw = twin(&setup);
     let cfg = VehicleConfig {
-        fly_on_estimates: false,
         gyro_drift: true,
-        ..VehicleConfig::for_autopilot(Autopilot::ArduPilot)
+        ..own_navigation(Autopilot::ArduPilot)
     };
     assert_eq!(cfg.gnss_lag_us, 100_000);
     // Per instant: the angles derived from the vehicle's estimate and the true ones, deg.
@@ -694,10 +702,7 @@ fn ardupilot_gyro_drift_is_sitls_triangle() {
 fn px4_vehicle_streams_v1_16_onboard_defaults() {
     let setup = short_setup(2.0, 100.0, 2.0);
     let tw = twin(&setup);
-    let cfg = VehicleConfig {
-        fly_on_estimates: false,
-        ..VehicleConfig::for_autopilot(Autopilot::Px4)
-    };
+    let cfg = own_navigation(Autopilot::Px4);
     let out = drive(
         &setup,
         cfg,
@@ -756,22 +761,11 @@ fn px4_vehicle_streams_v1_16_onboard_defaults() {
 #[test]
 fn stream_latency_delays_a_stream_without_changing_its_content() {
     let setup = short_setup(2.0, 100.0, 2.0);
-    let mut cfg = VehicleConfig {
-        fly_on_estimates: false,
-        ..VehicleConfig::for_autopilot(Autopilot::Px4)
-    };
+    let mut cfg = own_navigation(Autopilot::Px4);
     let i = sitl::streams::stream_index_by_name("HIGHRES_IMU").unwrap();
     cfg.latency_us[i] = 250_000;
     let delayed = drive(&setup, cfg, &[], |_| {});
-    let prompt = drive(
-        &setup,
-        VehicleConfig {
-            fly_on_estimates: false,
-            ..VehicleConfig::for_autopilot(Autopilot::Px4)
-        },
-        &[],
-        |_| {},
-    );
+    let prompt = drive(&setup, own_navigation(Autopilot::Px4), &[], |_| {});
     let imu = |out: &[(u64, apm::MavMessage)]| -> Vec<(u64, apm::HIGHRES_IMU_DATA)> {
         out.iter()
             .filter_map(|(t, m)| match m {
@@ -1302,9 +1296,8 @@ async fn malformed_and_hostile_input_is_refused_or_skipped_without_stopping_the_
 fn ardupilot_vfr_hud_airspeed_becomes_its_own_estimate_when_the_sensor_is_unhealthy() {
     let setup = short_setup(2.0, 100.0, 8.0);
     let cfg = VehicleConfig {
-        fly_on_estimates: false,
         airspeed_unhealthy_from_us: Some(6_000_000),
-        ..VehicleConfig::for_autopilot(Autopilot::ArduPilot)
+        ..own_navigation(Autopilot::ArduPilot)
     };
     let mut eas: BTreeMap<u64, f64> = BTreeMap::new();
     let out = drive(
@@ -1357,10 +1350,7 @@ fn ardupilot_vfr_hud_airspeed_becomes_its_own_estimate_when_the_sensor_is_unheal
 fn ardupilot_reports_no_fix_with_the_last_fix_time_after_the_loss() {
     let setup = short_setup(2.0, 4.0, 10.0);
     let tw = twin(&setup);
-    let cfg = VehicleConfig {
-        fly_on_estimates: false,
-        ..VehicleConfig::for_autopilot(Autopilot::ArduPilot)
-    };
+    let cfg = own_navigation(Autopilot::ArduPilot);
     let out = drive(
         &setup,
         cfg,
