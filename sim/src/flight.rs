@@ -981,6 +981,8 @@ impl Flight {
             delta_b_n_sigma_nt,
             aoa_rad: truth.aoa_rad,
             mag_decimal_year: self.magnetic_decimal_year,
+            // Drawn at the instant of the first IMU sample.
+            valid_at_us: None,
         };
         Ok(Ins::new(&self.ins_config, &init)?)
     }

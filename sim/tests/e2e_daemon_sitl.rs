@@ -872,10 +872,6 @@ async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
 /// samples, and still do no worse than the vehicle's own INS after the loss. (SITL's gyro
 /// drift is off here: `ardupilot_properties_one_at_a_time` measures it.)
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[ignore = "fails today (open): 3 s after its start the INS gates five fixes in a row \
-            beside the ardupilot vehicle and is re-initialised (with gnss_lag_s 0.1 or 0 alike); \
-            after the loss 81 m RMS against the vehicle's own 81 m, but 86 m at 200 s against \
-            71 + 14 m"]
 async fn beside_ardupilot_the_daemon_gets_40_hz_and_does_no_worse_than_the_autopilot() {
     let setup = setup();
     let (off, run) = run_beside_offline(

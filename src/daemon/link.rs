@@ -10,12 +10,14 @@
 //! them: they are invisible to the counters (rust-mavlink #209), and the robustness tests
 //! check instead that valid traffic after them still gets through.
 
+use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
 use mavlink::{AsyncMavConnection, MAVLinkMessageRaw, MavHeader, Message, MessageData};
 use tokio::sync::{mpsc, watch};
 
+use super::health::MIN_IMU_RATE_HZ;
 use super::nav_thread::NavInput;
 use super::{Clock, Outbox, Shared, stopped_after};
 use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig};
@@ -31,6 +33,12 @@ pub type Conn = mavlink::AsyncConnection<apm::MavMessage>;
 
 /// Largest difference between the ATTITUDE and the GNSS fix used to start the INS, µs.
 pub const INIT_ATTITUDE_MAX_AGE_US: u64 = 1_000_000;
+/// The INS starts only once the IMU stream runs at the rate solutions are published at
+/// ([`MIN_IMU_RATE_HZ`]) over this window: before the interval requests are granted an
+/// autopilot streams its IMU at 1 Hz, and an INS started on that integrates seconds-long steps.
+pub const INIT_IMU_WINDOW_US: u64 = 1_000_000;
+/// Fixes without a down velocity after which the INS starts anyway (at 0 m/s down).
+pub const INIT_FIXES_WITHOUT_VD: u64 = 10;
 
 async fn connect(cfg: &DaemonConfig) -> std::io::Result<Conn> {
     let mut conn = mavlink::connect_async::<apm::MavMessage>(&cfg.mavlink.connection).await?;
@@ -142,6 +150,8 @@ struct ReaderState {
     gate: MonotonicGate,
     seq: SequenceTracker,
     init_sent: bool,
+    /// Times of the IMU samples of the last [`INIT_IMU_WINDOW_US`], µs.
+    recent_imu_us: VecDeque<u64>,
 }
 
 /// Connect (with back-off), read, reconnect on transport errors.
@@ -175,6 +185,7 @@ pub(super) async fn reader(
         gate: MonotonicGate::default(),
         seq: SequenceTracker::default(),
         init_sent: false,
+        recent_imu_us: VecDeque::new(),
     };
     let mut backoff = Duration::from_millis(100);
     loop {
@@ -327,6 +338,7 @@ async fn handle_raw(
     {
         st.dec.reset();
         st.seq.reset();
+        st.recent_imu_us.clear();
         shared.state(|s| s.request_generation += 1);
         shared.count(|c| c.autopilot_reboots += 1);
         outbox.status(
@@ -384,6 +396,16 @@ async fn handle_raw(
             });
             continue;
         }
+        if let SensorEvent::Imu(imu) = &ev {
+            st.recent_imu_us.push_back(imu.t_us);
+            while st
+                .recent_imu_us
+                .front()
+                .is_some_and(|t| imu.t_us.saturating_sub(*t) >= INIT_IMU_WINDOW_US)
+            {
+                st.recent_imu_us.pop_front();
+            }
+        }
         if let SensorEvent::Gnss(fix) = &ev {
             let e7 = |rad: f64| (rad.to_degrees() * 1e7).round() as i64;
             let h_acc_mm = (fix.sigma_hor_m * 1e3).round() as i64;
@@ -401,7 +423,14 @@ async fn handle_raw(
                 continue;
             }
             shared.state(|s| s.last_fix_us = Some(rx_us));
-            if !st.init_sent {
+            let imu_ready =
+                st.recent_imu_us.len() as f64 >= MIN_IMU_RATE_HZ * INIT_IMU_WINDOW_US as f64 * 1e-6;
+            // GPS_RAW_INT has no down velocity: the INS starts from a fix that has GLOBAL_POSITION_INT's
+            // (a descent taken for level flight throws the first seconds off), unless the
+            // autopilot never sends it.
+            let vd_ready = st.dec.last_fix_has_vertical_velocity()
+                || st.dec.counters().gnss_no_vd >= INIT_FIXES_WITHOUT_VD;
+            if !st.init_sent && imu_ready && vd_ready {
                 match st.dec.attitude() {
                     Some(att) if att.t_us.abs_diff(fix.t_us) <= INIT_ATTITUDE_MAX_AGE_US => {
                         let year = if cfg.navigation.mag_decimal_year != 0.0 {
@@ -409,7 +438,8 @@ async fn handle_raw(
                         } else {
                             clock.decimal_year()
                         };
-                        let init = InsInit::new(att.q_nb, fix.pos, fix.v_ned_mps, year);
+                        let mut init = InsInit::new(att.q_nb, fix.pos, fix.v_ned_mps, year);
+                        init.valid_at_us = Some(fix.t_us);
                         let und = st.dec.undulation_m().unwrap_or(0.0);
                         shared.state(|s| {
                             s.origin = Some(fix.pos);

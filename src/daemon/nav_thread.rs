@@ -138,6 +138,7 @@ pub fn spawn(
                                     init.e_mag_nt = sol.ins.e_mag_nt;
                                     init.delta_b_n_nt = sol.ins.delta_b_n_nt;
                                     init.aoa_rad = sol.ins.aoa_rad;
+                                    init.valid_at_us = Some(fix.t_us);
                                     match nav.initialise(&init) {
                                         Ok(()) => tracing::warn!(
                                             "GNSS back for 5 s: INS re-initialised at the fix"
@@ -152,6 +153,14 @@ pub fn spawn(
                             }
                         }
                         if let Some(sol) = nav.push(&ev) {
+                            if let Some(nis) = sol.ins.gnss_nis {
+                                tracing::debug!(
+                                    t_us = sol.ins.t_us,
+                                    nis,
+                                    denied = sol.ins.gnss_denied,
+                                    "GNSS fix processed"
+                                );
+                            }
                             last = Some(sol);
                             publisher.on_solution(&sol, rx_at);
                             latest.send_replace(Some(Latest { sol, imu_rx: rx_at }));

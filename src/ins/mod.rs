@@ -105,6 +105,10 @@ pub struct InsInit {
     pub aoa_rad: f64,
     /// Epoch of the World Magnetic Model, decimal year (within WMM2025's validity).
     pub mag_decimal_year: f64,
+    /// Time of validity of `pos` and `v_ned_mps` (the fix's time), µs. The INS starts at its
+    /// first IMU sample, which can be later (a slow stream, a lagged fix): it carries the
+    /// position there at the initial velocity. `None`: valid at that first sample.
+    pub valid_at_us: Option<u64>,
 }
 
 impl InsInit {
@@ -129,6 +133,7 @@ impl InsInit {
             delta_b_n_sigma_nt: Vector3::from(COLD_DELTA_B_SIGMA_NT),
             aoa_rad: 0.0,
             mag_decimal_year,
+            valid_at_us: None,
         }
     }
 
@@ -548,9 +553,21 @@ impl Ins {
         };
         let cfg = &self.cfg;
         let init = &self.init;
+        let init_pos = match init.valid_at_us {
+            Some(t0_us) => {
+                let dt_s = (s.t_us as f64 - t0_us as f64) / US_PER_S;
+                let rates = wgs84::geodetic_rates(&init.pos, &init.v_ned_mps);
+                Geodetic {
+                    lat_rad: init.pos.lat_rad + rates.x * dt_s,
+                    lon_rad: init.pos.lon_rad + rates.y * dt_s,
+                    h_m: init.pos.h_m + rates.z * dt_s,
+                }
+            }
+            None => init.pos,
+        };
         let air = AirDataFilter::new(&cfg.air, &air_sample, init.aoa_rad);
         let w_in_n =
-            wgs84::omega_ie_n(init.pos.lat_rad) + wgs84::omega_en_n(&init.pos, &init.v_ned_mps);
+            wgs84::omega_ie_n(init_pos.lat_rad) + wgs84::omega_en_n(&init_pos, &init.v_ned_mps);
         let att = AttitudeFilter::new(
             &cfg.attitude,
             &AttitudeInit {
@@ -567,7 +584,7 @@ impl Ins {
         let gnss = GnssFilter::new(
             &cfg.position,
             &PositionInit {
-                pos: init.pos,
+                pos: init_pos,
                 v_n: init.v_ned_mps,
                 f_b: s.accel_mps2 - init.e_acc_mps2,
                 e_acc: init.e_acc_mps2,

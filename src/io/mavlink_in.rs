@@ -219,6 +219,8 @@ pub struct InputDecoder {
     attitude: Option<ApAttitude>,
     /// Last geoid undulation seen (alt_ellipsoid − alt), m.
     undulation_m: Option<f64>,
+    /// Whether the last decoded fix had a measured down velocity (a recent `vz`).
+    last_fix_vd_known: bool,
     /// Last time of each IMU message type: HIGHRES_IMU, SCALED_IMU, RAW_IMU, µs.
     imu_seen_us: [Option<u64>; 3],
 }
@@ -265,6 +267,7 @@ impl InputDecoder {
             vz: None,
             attitude: None,
             undulation_m: None,
+            last_fix_vd_known: false,
             imu_seen_us: [None; 3],
         }
     }
@@ -292,6 +295,12 @@ impl InputDecoder {
     /// Geoid undulation N = h − MSL from the last fix that reported both, m.
     pub fn undulation_m(&self) -> Option<f64> {
         self.undulation_m
+    }
+
+    /// Whether the last decoded fix carried a measured down velocity. A fix without one says
+    /// 0 m/s with a large σ: fine to fuse, wrong to start an INS from.
+    pub fn last_fix_has_vertical_velocity(&self) -> bool {
+        self.last_fix_vd_known
     }
 
     /// Forget the history (after an autopilot reboot).
@@ -621,7 +630,9 @@ impl InputDecoder {
         } else {
             d_sigma_vel
         };
-        let vd = match self.vz.filter(|(t, _)| t_us.abs_diff(*t) <= VZ_MAX_AGE_US) {
+        let vz = self.vz.filter(|(t, _)| t_us.abs_diff(*t) <= VZ_MAX_AGE_US);
+        self.last_fix_vd_known = vz.is_some();
+        let vd = match vz {
             Some((_, vd)) => vd,
             None => {
                 self.counters.gnss_no_vd += 1;
