@@ -91,6 +91,9 @@ async fn a_denied_imu_interval_is_retried_at_the_fastest_allowed_rate() {
     assert_eq!(c.interval_refused, 2, "{c:?}");
 }
 
+/// ArduPilot's default RAW_IMU stream is one sample a second until the requested interval is
+/// granted: the INS does not start on it; once it runs, a stream that falls to 1 Hz is
+/// withheld, said, and publication resumes when the rate is back.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_one_hertz_imu_stream_is_never_published_and_publication_resumes_at_100_hz() {
     let port = fa::free_udp_port();
@@ -100,7 +103,22 @@ async fn a_one_hertz_imu_stream_is_never_published_and_publication_resumes_at_10
     ))
     .await;
     let fake = Fake::start(port).await;
-    // ArduPilot's default RAW_IMU stream: one sample a second.
+    fake.ctl.lock().unwrap().imu_period_us = 1_000_000;
+    // Fixes and attitudes arrive (5 Hz, 50 Hz): only the IMU rate holds the start back.
+    tokio::time::sleep(Duration::from_secs(3)).await;
+    let c = h.shared.counters();
+    assert!(c.input.gnss >= 5, "{c:?}");
+    assert_eq!(c.nav.initialisations, 0, "INS started on a 1 Hz IMU: {c:?}");
+    assert_eq!(c.published, 0, "published on a 1 Hz IMU");
+    // 100 Hz: the INS starts and publishes.
+    fake.ctl.lock().unwrap().imu_period_us = 0;
+    let t = Instant::now();
+    assert!(
+        wait_for(Duration::from_secs(6), || published_since(&fake, t) > 10).await,
+        "{:?}",
+        h.shared.counters()
+    );
+    // Down to 1 Hz in flight: withheld within the 2 s window, and said.
     fake.ctl.lock().unwrap().imu_period_us = 1_000_000;
     assert!(
         wait_for(Duration::from_secs(8), || h
