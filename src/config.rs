@@ -208,10 +208,20 @@ pub struct InputConfig {
     pub aoa_ssa: AoaSsaUse,
     /// Age of a GNSS fix when the autopilot stamps it, s: GPS_RAW_INT `time_usec` is when the
     /// autopilot received the fix (receiver latency not included). The fix is dated this much
-    /// earlier; the INS extrapolates it to its own time (ArduPilot SITL: 0.1 s of simulated
-    /// receiver lag; a u-blox receiver: about 0.1–0.2 s).
+    /// earlier; the INS compares it with its own state at that time (ArduPilot SITL: 0.1 s of
+    /// simulated receiver lag; a u-blox receiver: about 0.1–0.2 s).
     #[serde(default)]
     pub gnss_lag_s: f64,
+    /// The INS starts once the true airspeed reaches this, m/s: its models are those of a
+    /// flying aircraft (no sustained longitudinal acceleration, the air velocity along the
+    /// body), and started on the ground it re-initialised through every take-off. 0: at the
+    /// first fix.
+    #[serde(default = "default_start_airspeed_mps")]
+    pub start_airspeed_mps: f64,
+}
+
+fn default_start_airspeed_mps() -> f64 {
+    10.0
 }
 
 fn default_aoa_ssa() -> AoaSsaUse {
@@ -249,6 +259,7 @@ impl Default for InputConfig {
             gnss_loss_timeout_s: default_gnss_loss_timeout_s(),
             aoa_ssa: default_aoa_ssa(),
             gnss_lag_s: 0.0,
+            start_airspeed_mps: default_start_airspeed_mps(),
         }
     }
 }
@@ -573,6 +584,7 @@ impl DaemonConfig {
             0.0,
             0.8 * self.ins.position.gnss_max_lag_s,
         )?;
+        in_range("input.start_airspeed_mps", i.start_airspeed_mps, 0.0, 100.0)?;
         let o = &self.output;
         in_range("output.rate_hz", o.rate_hz, 1.0, 200.0)?;
         if o.gps_id > 1 {

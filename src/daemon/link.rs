@@ -152,6 +152,8 @@ struct ReaderState {
     init_sent: bool,
     /// Times of the IMU samples of the last [`INIT_IMU_WINDOW_US`], µs.
     recent_imu_us: VecDeque<u64>,
+    /// True airspeed of the latest air-data sample, m/s.
+    tas_mps: Option<f64>,
 }
 
 /// Connect (with back-off), read, reconnect on transport errors.
@@ -186,6 +188,7 @@ pub(super) async fn reader(
         seq: SequenceTracker::default(),
         init_sent: false,
         recent_imu_us: VecDeque::new(),
+        tas_mps: None,
     };
     let mut backoff = Duration::from_millis(100);
     loop {
@@ -396,6 +399,9 @@ async fn handle_raw(
             });
             continue;
         }
+        if let SensorEvent::Air(air) = &ev {
+            st.tas_mps = Some(air.tas_mps);
+        }
         if let SensorEvent::Imu(imu) = &ev {
             st.recent_imu_us.push_back(imu.t_us);
             while st
@@ -430,7 +436,10 @@ async fn handle_raw(
             // autopilot never sends it.
             let vd_ready = st.dec.last_fix_has_vertical_velocity()
                 || st.dec.counters().gnss_no_vd >= INIT_FIXES_WITHOUT_VD;
-            if !st.init_sent && imu_ready && vd_ready {
+            let flying = st
+                .tas_mps
+                .is_some_and(|v| v >= cfg.input.start_airspeed_mps);
+            if !st.init_sent && imu_ready && vd_ready && flying {
                 match st.dec.attitude() {
                     Some(att) if att.t_us.abs_diff(fix.t_us) <= INIT_ATTITUDE_MAX_AGE_US => {
                         let year = if cfg.navigation.mag_decimal_year != 0.0 {

@@ -106,8 +106,8 @@ pub struct InsInit {
     /// Epoch of the World Magnetic Model, decimal year (within WMM2025's validity).
     pub mag_decimal_year: f64,
     /// Time of validity of `pos` and `v_ned_mps` (the fix's time), µs. The INS starts at its
-    /// first IMU sample, which can be later (a slow stream, a lagged fix): it carries the
-    /// position there at the initial velocity. `None`: valid at that first sample.
+    /// first IMU sample, which can be later (a slow stream, a lagged fix): it carries position
+    /// and velocity there with that sample's acceleration. `None`: valid at that first sample.
     pub valid_at_us: Option<u64>,
 }
 
@@ -553,21 +553,26 @@ impl Ins {
         };
         let cfg = &self.cfg;
         let init = &self.init;
-        let init_pos = match init.valid_at_us {
+        // Carried over the fix's age at the acceleration of this first sample (C_nb f + g:
+        // a take-off roll at 8 m/s² gains 2.4 m/s over a 0.3 s old fix).
+        let (init_pos, init_v) = match init.valid_at_us {
             Some(t0_us) => {
                 let dt_s = (s.t_us as f64 - t0_us as f64) / US_PER_S;
-                let rates = wgs84::geodetic_rates(&init.pos, &init.v_ned_mps);
-                Geodetic {
+                let a_n = init.q_nb * (s.accel_mps2 - init.e_acc_mps2)
+                    + wgs84::gravity_ned_mps2(&init.pos);
+                let v_mid = init.v_ned_mps + a_n * (dt_s / 2.0);
+                let rates = wgs84::geodetic_rates(&init.pos, &v_mid);
+                let pos = Geodetic {
                     lat_rad: init.pos.lat_rad + rates.x * dt_s,
                     lon_rad: init.pos.lon_rad + rates.y * dt_s,
                     h_m: init.pos.h_m + rates.z * dt_s,
-                }
+                };
+                (pos, init.v_ned_mps + a_n * dt_s)
             }
-            None => init.pos,
+            None => (init.pos, init.v_ned_mps),
         };
         let air = AirDataFilter::new(&cfg.air, &air_sample, init.aoa_rad);
-        let w_in_n =
-            wgs84::omega_ie_n(init_pos.lat_rad) + wgs84::omega_en_n(&init_pos, &init.v_ned_mps);
+        let w_in_n = wgs84::omega_ie_n(init_pos.lat_rad) + wgs84::omega_en_n(&init_pos, &init_v);
         let att = AttitudeFilter::new(
             &cfg.attitude,
             &AttitudeInit {
@@ -585,7 +590,7 @@ impl Ins {
             &cfg.position,
             &PositionInit {
                 pos: init_pos,
-                v_n: init.v_ned_mps,
+                v_n: init_v,
                 f_b: s.accel_mps2 - init.e_acc_mps2,
                 e_acc: init.e_acc_mps2,
                 e_acc_sigma: init.e_acc_sigma_mps2,
@@ -798,6 +803,7 @@ fn run_step(
                     }
                 }
             }
+            filter.record(step.t_us, cfg.position.gnss_max_lag_s);
             let p_air = core.air.covariance();
             est.step(
                 step.dt_s,

@@ -1402,17 +1402,19 @@ fn invalid_or_repeated_reference_attitudes_are_rejected_and_counted() {
 }
 
 /// An INS started from a fix older than its first IMU sample (a slow stream before the
-/// requested rates arrive, a lagged fix) starts where the vehicle is at that sample: the
-/// position is carried at the initial velocity. Without the fix's time it would start
-/// `|v| · age` behind (30 m/s × 0.8 s = 24 m).
+/// requested rates arrive, a lagged fix) starts where the vehicle is at that sample: position
+/// and velocity are carried with that sample's acceleration. Without the fix's time it would
+/// start `|v| · age` behind (30 m/s × 0.8 s = 24 m) and, in a turn, with the velocity of
+/// `age` earlier (5.7 m/s² × 0.3 s = 1.7 m/s at 30° of bank).
 #[test]
 fn a_start_from_an_older_fix_is_carried_to_the_first_imu_sample() {
-    let age_us = 800_000;
-    let first_error_m = |dated: bool| {
-        let mut synth = Synth::new(turn_motion(0.0), 100.0, 3);
+    // (horizontal position error, velocity error) of the first solution.
+    let first_errors = |bank_deg: f64, age_us: u64, dated: bool| {
+        let mut synth = Synth::new(turn_motion(bank_deg), 100.0, 3);
         synth.noise = false;
         let tr = synth.truth();
         let mut init = InsInit::new(tr.q_nb, tr.pos, tr.v_n, YEAR);
+        init.e_acc_mps2 = synth.errors.e_acc;
         init.valid_at_us = dated.then_some(tr.t_us);
         let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
         while synth.t_us < age_us {
@@ -1420,18 +1422,25 @@ fn a_start_from_an_older_fix_is_carried_to_the_first_imu_sample() {
         }
         let mut first = None;
         run(&mut synth, &mut ins, 0.05, |_, tr, sol| {
-            first.get_or_insert(hor_err(tr, sol).norm());
+            first.get_or_insert((hor_err(tr, sol).norm(), (sol.v_ned_mps - tr.v_n).norm()));
         });
         first.unwrap()
     };
-    // Straight and level at constant ground velocity: carrying it is exact but for the
-    // truth's RK4 and the geodetic rates' curvature over 24 m (micrometres).
-    assert!(first_error_m(true) < 0.01, "{}", first_error_m(true));
+    // Straight and level at constant ground velocity: exact but for the Coriolis term left out
+    // (2 Ω × v ≈ 4e-3 m/s² over 0.8 s: 1 mm) and the truth's integration.
+    let (pos_m, _) = first_errors(0.0, 800_000, true);
+    assert!(pos_m < 0.01, "{pos_m}");
     let speed_mps = turn_motion(0.0).v_n(0.0).norm();
-    let undated = first_error_m(false);
+    let (undated_m, _) = first_errors(0.0, 800_000, false);
     assert!(
-        (undated - speed_mps * 0.8).abs() < 0.5,
-        "{undated} m, expected {} m",
+        (undated_m - speed_mps * 0.8).abs() < 0.5,
+        "{undated_m} m, expected {} m",
         speed_mps * 0.8
     );
+    // A 30° turn: the acceleration (g tan 30° = 5.7 m/s²) turns at 0.19 rad/s, so the first
+    // sample's is off its mean over 0.3 s by a·ω·age/2 ≈ 0.16 m/s² → 0.05 m/s.
+    let (_, v_mps) = first_errors(30.0, 300_000, true);
+    assert!(v_mps < 0.1, "{v_mps}");
+    let (_, undated_v_mps) = first_errors(30.0, 300_000, false);
+    assert!(undated_v_mps > 1.5, "{undated_v_mps}");
 }

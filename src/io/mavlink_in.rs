@@ -35,10 +35,13 @@
 //!   the MSL `alt` is used and counted, an error of the geoid undulation, ±100 m), `vel` cm/s
 //!   along `cog` cdeg for the horizontal velocity. GPS_RAW_INT has no vertical velocity: the
 //!   down velocity is the `vz` of GLOBAL_POSITION_INT (the autopilot's GNSS-aided estimate)
-//!   when one arrived within [`VZ_MAX_AGE_US`], else 0 with its σ raised to
+//!   at the fix's time (interpolated, or the nearest within [`VZ_MAX_AGE_US`]), else 0 with
+//!   its σ raised to
 //!   [`VD_UNKNOWN_SIGMA_MPS`]. σ: `h_acc`, `v_acc`, `vel_acc` when non-zero, else HDOP/VDOP ×
 //!   [`UERE_M`] and the INS's configured defaults. The fix is dated the configured receiver
 //!   lag before its stamp (`time_usec` is when the autopilot received it).
+
+use std::collections::VecDeque;
 
 use nalgebra::{UnitQuaternion, Vector3};
 
@@ -69,6 +72,8 @@ pub const T_RANGE_K: (f64, f64) = (183.15, 343.15);
 pub const MAX_AIRSPEED_MPS: f64 = 150.0;
 /// Airspeed and vane samples older than this are not combined with a pressure sample, µs.
 pub const AIR_MAX_AGE_US: u64 = 500_000;
+/// GLOBAL_POSITION_INT `vz` kept to find the one at a lagged fix's time, µs.
+pub const VZ_HISTORY_US: u64 = 3_000_000;
 /// GLOBAL_POSITION_INT `vz` older than this is not used as the GNSS down velocity, µs.
 pub const VZ_MAX_AGE_US: u64 = 1_000_000;
 /// σ of the down velocity when none is known, m/s (a fixed wing rarely climbs faster).
@@ -215,7 +220,8 @@ pub struct InputDecoder {
     /// (t_us, aoa rad, aos rad).
     vanes: Option<(u64, f64, f64)>,
     /// (t_us, down velocity m/s).
-    vz: Option<(u64, f64)>,
+    /// GLOBAL_POSITION_INT `vz` of the last [`VZ_HISTORY_US`], oldest first: (µs, m/s).
+    vz: VecDeque<(u64, f64)>,
     attitude: Option<ApAttitude>,
     /// Last geoid undulation seen (alt_ellipsoid − alt), m.
     undulation_m: Option<f64>,
@@ -264,7 +270,7 @@ impl InputDecoder {
             eas_hud: None,
             airspeed_unhealthy_us: None,
             vanes: None,
-            vz: None,
+            vz: VecDeque::new(),
             attitude: None,
             undulation_m: None,
             last_fix_vd_known: false,
@@ -309,7 +315,7 @@ impl InputDecoder {
         self.eas_hud = None;
         self.airspeed_unhealthy_us = None;
         self.vanes = None;
-        self.vz = None;
+        self.vz.clear();
         self.attitude = None;
         self.imu_seen_us = [None; 3];
     }
@@ -487,7 +493,17 @@ impl InputDecoder {
             }
             M::GLOBAL_POSITION_INT(m) => {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
-                self.vz = Some((t_us, f64::from(m.vz) / 100.0));
+                if self.vz.back().is_some_and(|(t, _)| *t >= t_us) {
+                    self.vz.clear();
+                }
+                self.vz.push_back((t_us, f64::from(m.vz) / 100.0));
+                while self
+                    .vz
+                    .front()
+                    .is_some_and(|(t, _)| t_us - t > VZ_HISTORY_US)
+                {
+                    self.vz.pop_front();
+                }
                 Ok(())
             }
             M::GPS_RAW_INT(m) => {
@@ -630,10 +646,10 @@ impl InputDecoder {
         } else {
             d_sigma_vel
         };
-        let vz = self.vz.filter(|(t, _)| t_us.abs_diff(*t) <= VZ_MAX_AGE_US);
+        let vz = vz_at(&self.vz, t_us);
         self.last_fix_vd_known = vz.is_some();
         let vd = match vz {
-            Some((_, vd)) => vd,
+            Some(vd) => vd,
             None => {
                 self.counters.gnss_no_vd += 1;
                 sigma_vel_mps = sigma_vel_mps.max(VD_UNKNOWN_SIGMA_MPS);
@@ -653,6 +669,26 @@ impl InputDecoder {
             sigma_vel_mps,
         })
     }
+}
+
+/// The down velocity at the fix's time `t_us`: interpolated between the two `vz` around it,
+/// else the nearest within [`VZ_MAX_AGE_US`]. `vz` is the autopilot's estimate at its own
+/// time while the fix is a receiver lag older: in a pull-up from a 10 m/s climb the newest
+/// `vz` is metres per second off the fix's.
+fn vz_at(history: &VecDeque<(u64, f64)>, t_us: u64) -> Option<f64> {
+    let i = history.partition_point(|(t, _)| *t < t_us);
+    if let (Some(&(ta, va)), Some(&(tb, vb))) = (
+        i.checked_sub(1).and_then(|j| history.get(j)),
+        history.get(i),
+    ) {
+        let w = (t_us - ta) as f64 / (tb - ta) as f64;
+        return Some(va + (vb - va) * w);
+    }
+    history
+        .iter()
+        .filter(|(t, _)| t.abs_diff(t_us) <= VZ_MAX_AGE_US)
+        .min_by_key(|(t, _)| t.abs_diff(t_us))
+        .map(|(_, v)| *v)
 }
 
 /// HIGHRES_IMU `abs_pressure` in Pa. The message defines hPa, but PX4 (v1.16) sends Pa. The two
@@ -1139,5 +1175,22 @@ mod tests {
         assert_eq!(a.t_us, 500_000);
         let e = so3::euler_zyx(&a.q_nb);
         assert!((e - Vector3::new(1.5, -0.05, 0.1)).norm() < 1e-6);
+    }
+
+    /// A lagged fix takes the `vz` of its own time: 0.2 s behind the newest sample in a
+    /// pull-up whose climb rate falls by 5 m/s per second, the newest would be 1 m/s off.
+    #[test]
+    fn the_down_velocity_is_taken_at_the_fix_time() {
+        // vz at 5 Hz: −10 m/s (climbing) easing to 0 at 5 m/s².
+        let history: VecDeque<(u64, f64)> = (0..=10)
+            .map(|k| (k * 200_000, (-10.0 + 5.0 * 0.2 * k as f64).min(0.0)))
+            .collect();
+        let at = |t_us| vz_at(&history, t_us).unwrap();
+        assert!((at(1_300_000) - (-3.5)).abs() < 1e-12);
+        assert!((at(1_400_000) - (-3.0)).abs() < 1e-12);
+        // Beyond the newest: the nearest within the age limit, then nothing.
+        assert_eq!(vz_at(&history, 2_500_000), Some(0.0));
+        assert_eq!(vz_at(&history, 2_000_000 + VZ_MAX_AGE_US + 1), None);
+        assert_eq!(vz_at(&VecDeque::new(), 0), None);
     }
 }
