@@ -212,10 +212,10 @@ pub struct InputConfig {
     /// simulated receiver lag; a u-blox receiver: about 0.1–0.2 s).
     #[serde(default)]
     pub gnss_lag_s: f64,
-    /// The INS starts once the true airspeed reaches this, m/s: its models are those of a
-    /// flying aircraft (no sustained longitudinal acceleration, the air velocity along the
-    /// body), and started on the ground it re-initialised through every take-off. 0: at the
-    /// first fix.
+    /// Started on the ground, the INS is started again once the true airspeed reaches this,
+    /// m/s: its models are those of a flying aircraft (no sustained longitudinal acceleration,
+    /// the air velocity along the body), and through a take-off roll it re-initialised five
+    /// times. 0: never (a daemon started in flight starts its INS once, at the first fix).
     #[serde(default = "default_start_airspeed_mps")]
     pub start_airspeed_mps: f64,
 }

@@ -154,6 +154,8 @@ struct ReaderState {
     recent_imu_us: VecDeque<u64>,
     /// True airspeed of the latest air-data sample, m/s.
     tas_mps: Option<f64>,
+    /// The INS has been started at a flying airspeed.
+    flight_init_sent: bool,
 }
 
 /// Connect (with back-off), read, reconnect on transport errors.
@@ -189,6 +191,7 @@ pub(super) async fn reader(
         init_sent: false,
         recent_imu_us: VecDeque::new(),
         tas_mps: None,
+        flight_init_sent: false,
     };
     let mut backoff = Duration::from_millis(100);
     loop {
@@ -439,7 +442,11 @@ async fn handle_raw(
             let flying = st
                 .tas_mps
                 .is_some_and(|v| v >= cfg.input.start_airspeed_mps);
-            if !st.init_sent && imu_ready && vd_ready && flying {
+            // Started on the ground (an autopilot with our GPS_INPUT as a receiver does not arm
+            // without it), the INS is started again once flying: its models are those of a
+            // flying aircraft, and through the take-off roll it went wrong.
+            let start = !st.init_sent || (flying && !st.flight_init_sent);
+            if start && imu_ready && vd_ready {
                 match st.dec.attitude() {
                     Some(att) if att.t_us.abs_diff(fix.t_us) <= INIT_ATTITUDE_MAX_AGE_US => {
                         let year = if cfg.navigation.mag_decimal_year != 0.0 {
@@ -449,15 +456,20 @@ async fn handle_raw(
                         };
                         let mut init = InsInit::new(att.q_nb, fix.pos, fix.v_ned_mps, year);
                         init.valid_at_us = Some(fix.t_us);
-                        let und = st.dec.undulation_m().unwrap_or(0.0);
-                        shared.state(|s| {
-                            s.origin = Some(fix.pos);
-                            s.undulation_m = und;
-                        });
+                        if !st.init_sent {
+                            let und = st.dec.undulation_m().unwrap_or(0.0);
+                            shared.state(|s| {
+                                s.origin = Some(fix.pos);
+                                s.undulation_m = und;
+                            });
+                        } else {
+                            tracing::info!("flying: INS started again for flight");
+                        }
                         if events.send(NavInput::Init(Box::new(init))).await.is_err() {
                             return false;
                         }
                         st.init_sent = true;
+                        st.flight_init_sent = flying;
                     }
                     _ => tracing::debug!("GNSS fix without a recent ATTITUDE: INS not started"),
                 }
