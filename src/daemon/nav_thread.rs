@@ -154,10 +154,14 @@ pub fn spawn(
                         }
                         if let Some(sol) = nav.push(&ev) {
                             if let Some(nis) = sol.ins.gnss_nis {
+                                let w = sol.ins.wind_ned_mps;
                                 tracing::debug!(
                                     t_us = sol.ins.t_us,
                                     nis,
                                     denied = sol.ins.gnss_denied,
+                                    wind_n_mps = w.x,
+                                    wind_e_mps = w.y,
+                                    tas_mps = sol.ins.tas_mps,
                                     "GNSS fix processed"
                                 );
                             }
