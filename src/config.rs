@@ -465,6 +465,18 @@ pub struct DaemonConfig {
     pub signing_key: Option<[u8; 32]>,
 }
 
+/// Overwrite `base`'s keys with `over`'s, table by table.
+fn merge_tables(base: &mut toml::Table, over: &toml::Table) {
+    for (key, value) in over {
+        match (base.get_mut(key), value) {
+            (Some(toml::Value::Table(b)), toml::Value::Table(o)) => merge_tables(b, o),
+            _ => {
+                base.insert(key.clone(), value.clone());
+            }
+        }
+    }
+}
+
 impl DaemonConfig {
     /// Read and validate a file; `navigation.ins_config` is resolved against its directory.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
@@ -478,38 +490,38 @@ impl DaemonConfig {
     /// Parse and validate TOML text; `base_dir` resolves a relative `navigation.ins_config`.
     pub fn from_toml_str(text: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
         let raw: RawConfig = toml::from_str(text)?;
-        let ins = match (&raw.ins, raw.navigation.ins_config.is_empty()) {
-            (Some(_), false) => {
-                return Err(invalid(
-                    "navigation.ins_config",
-                    format!("{:?}", raw.navigation.ins_config),
-                    "give either navigation.ins_config or an [ins] table, not both",
-                ));
+        let ins_error = |context: String| move |source| ConfigError::Ins { context, source };
+        let ins = if raw.navigation.ins_config.is_empty() {
+            match &raw.ins {
+                Some(table) => {
+                    let text = toml::to_string(table).map_err(|e| {
+                        invalid("ins", "[table]", format!("cannot re-serialise: {e}"))
+                    })?;
+                    InsConfig::from_toml_str(&text).map_err(ins_error("[ins]".to_owned()))?
+                }
+                None => InsConfig::default(),
             }
-            (Some(table), true) => {
-                let text = toml::to_string(table)
+        } else {
+            let p = Path::new(&raw.navigation.ins_config);
+            let p = match base_dir {
+                Some(dir) if p.is_relative() => dir.join(p),
+                _ => p.to_owned(),
+            };
+            let mut text = std::fs::read_to_string(&p).map_err(|source| ConfigError::Read {
+                path: p.clone(),
+                source,
+            })?;
+            let mut context = format!("navigation.ins_config ({})", p.display());
+            // An [ins] table next to the file overrides the file's keys.
+            if let Some(over) = &raw.ins {
+                let mut base: toml::Table = toml::from_str(&text)
+                    .map_err(|e| invalid(&context, "[file]", e.to_string()))?;
+                merge_tables(&mut base, over);
+                text = toml::to_string(&base)
                     .map_err(|e| invalid("ins", "[table]", format!("cannot re-serialise: {e}")))?;
-                InsConfig::from_toml_str(&text).map_err(|source| ConfigError::Ins {
-                    context: "[ins]".to_owned(),
-                    source,
-                })?
+                context.push_str(" with [ins] overrides");
             }
-            (None, false) => {
-                let p = Path::new(&raw.navigation.ins_config);
-                let p = match base_dir {
-                    Some(dir) if p.is_relative() => dir.join(p),
-                    _ => p.to_owned(),
-                };
-                let text = std::fs::read_to_string(&p).map_err(|source| ConfigError::Read {
-                    path: p.clone(),
-                    source,
-                })?;
-                InsConfig::from_toml_str(&text).map_err(|source| ConfigError::Ins {
-                    context: format!("navigation.ins_config ({})", p.display()),
-                    source,
-                })?
-            }
-            (None, true) => InsConfig::default(),
+            InsConfig::from_toml_str(&text).map_err(ins_error(context))?
         };
         let signing_key = if raw.mavlink.signing_key.is_empty() {
             None
@@ -850,7 +862,7 @@ mod tests {
     }
 
     #[test]
-    fn ins_from_a_file_or_inline_but_not_both() {
+    fn ins_from_a_file_inline_or_a_file_with_inline_overrides() {
         let cfg = parse(&format!(
             "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n"
         ))
@@ -862,9 +874,25 @@ mod tests {
         assert!(e.contains("missing.toml"), "{e}");
         let inline = parse(&format!("{MINIMAL}[ins]\nimu_gap_s = 0.2\n")).unwrap();
         assert_eq!(inline.ins.imu_gap_s, 0.2);
+        let both = parse(&format!(
+            "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n[ins]\nimu_gap_s = 0.2\n\
+             [ins.attitude]\nq_e_gyr_rad2ps2 = 1.27e-10\n"
+        ))
+        .unwrap();
+        let file = parse(&format!(
+            "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n"
+        ))
+        .unwrap();
+        assert_eq!(both.ins.imu_gap_s, 0.2);
+        assert_eq!(both.ins.attitude.q_e_gyr_rad2ps2, 1.27e-10);
+        // Everything else from the file.
+        let mut expected = file.ins.clone();
+        expected.imu_gap_s = 0.2;
+        expected.attitude.q_e_gyr_rad2ps2 = 1.27e-10;
+        assert_eq!(both.ins, expected);
         let e = error(&format!(
-            "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n[ins]\nimu_gap_s = 0.2\n"
+            "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n[ins.attitude]\nq_nonsense = 1.0\n"
         ));
-        assert!(e.starts_with("navigation.ins_config"), "{e}");
+        assert!(e.contains("with [ins] overrides"), "{e}");
     }
 }

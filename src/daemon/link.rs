@@ -431,7 +431,10 @@ async fn handle_raw(
                 }
                 continue;
             }
-            shared.state(|s| s.last_fix_us = Some(rx_us));
+            shared.state(|s| {
+                s.last_fix_us = Some(rx_us);
+                s.last_fix_sensor_us = Some(fix.t_us);
+            });
             let imu_ready =
                 st.recent_imu_us.len() as f64 >= MIN_IMU_RATE_HZ * INIT_IMU_WINDOW_US as f64 * 1e-6;
             // GPS_RAW_INT has no down velocity: the INS starts from a fix that has GLOBAL_POSITION_INT's

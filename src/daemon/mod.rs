@@ -211,6 +211,8 @@ pub struct State {
     pub last_rx_us: Option<u64>,
     /// Time of the last valid GNSS fix, µs.
     pub last_fix_us: Option<u64>,
+    /// Time of validity of the last valid fix, sensor time (the navigation's `t_us`), µs.
+    pub last_fix_sensor_us: Option<u64>,
     /// Time of the last camera frame, µs.
     pub last_frame_us: Option<u64>,
     /// Offset from the vehicle clock to `t_us`, µs (camera frame stamps).
@@ -577,9 +579,14 @@ async fn monitor(
             }
         }
         let timeout_us = (cfg.input.gnss_loss_timeout_s * 1e6) as u64;
-        let gnss_ok = st
-            .last_fix_us
-            .is_some_and(|t| now.saturating_sub(t) < timeout_us);
+        // In sensor time while solutions flow (with the autopilot clock a vehicle at 10× real
+        // time would otherwise be announced 20 s of its time late), else in reception time.
+        let gnss_ok = match (l, st.last_fix_sensor_us) {
+            (Some(l), Some(fix_us)) => l.sol.ins.t_us.saturating_sub(fix_us) < timeout_us,
+            _ => st
+                .last_fix_us
+                .is_some_and(|t| now.saturating_sub(t) < timeout_us),
+        };
         if st.last_fix_us.is_some() && flags.gnss_ok.is_some_and(|was| was != gnss_ok) {
             if gnss_ok {
                 outbox.status(S::MAV_SEVERITY_NOTICE, "ianav: GNSS regained");

@@ -320,6 +320,9 @@ def free_udp_port():
 def write_daemon_config(path, port, ins_config, args):
     # Keys newer daemons know are written only when asked for, so older builds still run.
     extra = "" if args.gnss_lag_s is None else f"gnss_lag_s = {args.gnss_lag_s}\n"
+    # The gyro-error random walk of config/ianav.toml (an autopilot's drifting MEMS gyro).
+    ins_over = ("" if not args.q_e_gyr else
+                f"[ins.attitude]\nq_e_gyr_rad2ps2 = {args.q_e_gyr}\n")
     with open(path, "w") as f:
         f.write(f"""# Written by tools/sitl/ardupilot_flight.py
 [mavlink]
@@ -337,7 +340,7 @@ satellites_visible = 10
 ins_config = "{ins_config}"
 [logging]
 counters_period_s = 30.0
-""")
+{ins_over}""")
 
 
 def interp(series, t):
@@ -581,6 +584,7 @@ def analyse(args, out, defn, gcs, router, completed, t_loss, t_cruise):
     s["speedup"] = args.speedup
     s["daemon_imu_rate_hz"] = args.imu_rate_hz
     s["daemon_gnss_lag_s"] = args.gnss_lag_s
+    s["daemon_q_e_gyr_rad2ps2"] = args.q_e_gyr
     s["daemon_commit"] = args.daemon_commit
     s["circuit_rotation_deg"] = defn["circuit_rotation_deg"]
     s["cruise_before_loss_s"] = args.cruise_s
@@ -748,6 +752,8 @@ def main():
     ap.add_argument("--daemon-port", type=int, default=0)
     ap.add_argument("--imu-rate-hz", type=float, default=40.0,
                     help="daemon input.imu_rate_hz (ArduPlane accepts 40 Hz at most)")
+    ap.add_argument("--q-e-gyr", type=float, default=1.27e-10,
+                    help="daemon [ins.attitude] q_e_gyr_rad2ps2 over --ins-config (0: not written)")
     ap.add_argument("--gnss-lag-s", type=float,
                     help="daemon input.gnss_lag_s (not written if absent)")
     ap.add_argument("--csv-step-s", type=float, default=0.0,
