@@ -171,6 +171,26 @@ impl AirDataFilter {
         &self.x
     }
 
+    /// The angles held without a vane, `[α, β]` (module doc).
+    pub fn held_angles(&self) -> [bool; 2] {
+        [!self.vane[0], !self.vane[1]]
+    }
+
+    /// The covariance without the rows and columns of the held angles. A held angle's whole
+    /// uncertainty is a bias (the true angle against the guess), constant in body axes: the
+    /// navigation models it as such ([`super::position::DeniedNav`]) and must not also count
+    /// it as noise of every sample.
+    pub fn covariance_without_held_angles(&self) -> SMatrix<f64, NX, NX> {
+        let mut p = self.p;
+        for (k, angle) in [AOA, AOS].into_iter().enumerate() {
+            if !self.vane[k] {
+                p.row_mut(angle).fill(0.0);
+                p.column_mut(angle).fill(0.0);
+            }
+        }
+        p
+    }
+
     /// Covariance.
     pub fn covariance(&self) -> &SMatrix<f64, NX, NX> {
         &self.p

@@ -602,7 +602,7 @@ impl Ins {
                 .fixed_view::<3, 3>(attitude::TH, attitude::TH)
                 .into_owned(),
             air.state(),
-            air.covariance(),
+            &air.covariance_without_held_angles(),
         );
         let wind = gnss.v_n() - v_air;
         let est = GnssPhaseEstimates::new(
@@ -700,6 +700,7 @@ fn run_step(
                 &cfg.position,
                 &cfg.air,
                 core.air.state(),
+                core.air.held_angles(),
                 filter,
                 est,
             )));
@@ -763,8 +764,12 @@ fn run_step(
         .covariance()
         .fixed_view::<3, 3>(attitude::TH, attitude::TH)
         .into_owned();
-    let (v_air, v_air_cov) =
-        position::air_velocity_n(&q_nb, &p_att, core.air.state(), core.air.covariance());
+    let (v_air, v_air_cov) = position::air_velocity_n(
+        &q_nb,
+        &p_att,
+        core.air.state(),
+        &core.air.covariance_without_held_angles(),
+    );
     let delta_t_k = core.air.delta_t_k();
     let hp_m = core.air.state()[air_data::HP];
 

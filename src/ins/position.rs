@@ -609,7 +609,8 @@ const DR_B: usize = 9;
 /// `δv = δw + C (δg + δb) + δv_air`: the frozen-wind error `δw` (a random constant), the gust
 /// the frozen wind cannot follow `δg = −v_gust` (body axes, first-order Gauss–Markov with
 /// the measured intensity and correlation time `L/V`), the air-velocity bias `δb` (Pitot and
-/// vane biases through `∂v_air/∂(V, α, β)`, constant in body axes) and the white remainder
+/// vane biases through `∂v_air/∂(V, α, β)`, or without a vane the held angle's error
+/// `no_vane_angle_sigma_deg`; constant in body axes) and the white remainder
 /// `δv_air` (attitude and air-data filter covariances). `δw` is correlated with `δg` (the
 /// low-pass holds part of the last gusts) and with `δb` (the wind estimate absorbed the
 /// bias at the low-passed attitude `C̄`: `δw ∋ −C̄ δb`).
@@ -643,6 +644,7 @@ impl DeniedNav {
         cfg: &PositionFilterConfig,
         air_cfg: &AirDataFilterConfig,
         air_x: &SVector<f64, { air_data::NX }>,
+        held_angles: [bool; 2],
         gnss: &GnssFilter,
         est: &GnssPhaseEstimates,
     ) -> Self {
@@ -650,10 +652,22 @@ impl DeniedNav {
         let (delta_p_pa, delta_p_var) = est.delta_p();
         let tas = air_x[air_data::TAS];
         let (_, j_air) = v_tas_b(tas, air_x[air_data::AOA], air_x[air_data::AOS]);
+        // A vane's bias, or without the vane the held guess's error (its whole uncertainty).
+        let angle_sigma_deg = |held: bool, vane_bias_deg: f64| {
+            if held {
+                air_cfg.no_vane_angle_sigma_deg
+            } else {
+                vane_bias_deg
+            }
+        };
         let bias_var = Matrix3::from_diagonal(&Vector3::new(
             air_cfg.tas_bias_sigma_mps.powi(2),
-            air_cfg.aoa_bias_sigma_deg.to_radians().powi(2),
-            air_cfg.aos_bias_sigma_deg.to_radians().powi(2),
+            angle_sigma_deg(held_angles[0], air_cfg.aoa_bias_sigma_deg)
+                .to_radians()
+                .powi(2),
+            angle_sigma_deg(held_angles[1], air_cfg.aos_bias_sigma_deg)
+                .to_radians()
+                .powi(2),
         ));
         let p_bb = j_air * bias_var * j_air.transpose();
         let (gust_var_b, held) = est.gust(tas);
@@ -1089,7 +1103,7 @@ mod tests {
         };
         let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
         air_x[air_data::TAS] = 30.0;
-        let mut nav = DeniedNav::new(&cfg, &air_cfg, &air_x, &f, &est);
+        let mut nav = DeniedNav::new(&cfg, &air_cfg, &air_x, [false; 2], &f, &est);
         let sigma2 = Vector3::new(0.81, 0.36, 0.25);
         nav.gust_var_b = sigma2;
         nav.p_dr = SMatrix::zeros();
