@@ -23,6 +23,14 @@ use crate::sensors::AirSample;
 
 /// Number of states.
 pub(crate) const NX: usize = 9;
+
+/// Variances of the held AoA and AoS guesses without vanes, rad².
+fn no_vane_floors(cfg: &AirDataFilterConfig) -> [f64; 2] {
+    [
+        cfg.no_vane_angle_sigma_deg.to_radians().powi(2),
+        cfg.no_vane_aos_sigma_deg.to_radians().powi(2),
+    ]
+}
 /// State index of the true airspeed, m/s.
 pub(crate) const TAS: usize = 0;
 /// State index of the angle of attack, rad.
@@ -67,20 +75,20 @@ impl AirDataFilter {
         let mut p = SMatrix::<f64, NX, NX>::zeros();
         let hyp2 = |a: f64, b: f64| a * a + b * b;
         p[(TAS, TAS)] = hyp2(cfg.tas_noise_sigma_mps, cfg.tas_bias_sigma_mps);
-        let no_vane = cfg.no_vane_angle_sigma_deg.to_radians().powi(2);
+        let [no_aoa_vane, no_aos_vane] = no_vane_floors(cfg);
         p[(AOA, AOA)] = match sample.aoa_rad {
             Some(_) => hyp2(
                 cfg.aoa_noise_sigma_deg.to_radians(),
                 cfg.aoa_bias_sigma_deg.to_radians(),
             ),
-            None => no_vane,
+            None => no_aoa_vane,
         };
         p[(AOS, AOS)] = match sample.aos_rad {
             Some(_) => hyp2(
                 cfg.aos_noise_sigma_deg.to_radians(),
                 cfg.aos_bias_sigma_deg.to_radians(),
             ),
-            None => no_vane,
+            None => no_aos_vane,
         };
         p[(TEMP, TEMP)] = hyp2(cfg.temp_noise_sigma_k, cfg.temp_bias_sigma_k);
         // Hp: (Hp(p₀ + σ_p) − Hp(p₀))² with σ_p = noise ⊕ bias, evaluated at the first reading.
@@ -152,11 +160,12 @@ impl AirDataFilter {
     /// Degraded mode (module doc): pin the rate of an unobserved angle and keep its variance at
     /// least the no-vane prior. Raising a diagonal entry keeps `P` positive semi-definite.
     fn hold_angles_without_vane(&mut self, cfg: &AirDataFilterConfig) {
-        let floor = cfg.no_vane_angle_sigma_deg.to_radians().powi(2);
+        let floors = no_vane_floors(cfg);
         for (k, (angle, rate)) in [(AOA, AOA_DOT), (AOS, AOS_DOT)].into_iter().enumerate() {
             if self.vane[k] {
                 continue;
             }
+            let floor = floors[k];
             self.x[rate] = 0.0;
             self.p.row_mut(rate).fill(0.0);
             self.p.column_mut(rate).fill(0.0);
@@ -257,11 +266,10 @@ mod tests {
             f.predict(&cfg, 0.01, 1.0);
             f.update(&cfg, &s);
         }
-        let floor = cfg.no_vane_angle_sigma_deg.to_radians().powi(2);
         assert_eq!(f.state()[AOA], 0.04);
         assert_eq!(f.state()[AOS], 0.0);
         // 1e5 steps of the tiny angle process noise (1e-15) add 1e-10 rad² at most.
-        for i in [AOA, AOS] {
+        for (i, floor) in [AOA, AOS].into_iter().zip(no_vane_floors(&cfg)) {
             assert!((f.covariance()[(i, i)] - floor).abs() < 1e-9);
         }
     }

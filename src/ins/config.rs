@@ -55,9 +55,18 @@ pub struct AirDataFilterConfig {
     pub p_noise_sigma_pa: f64,
     /// Static-pressure bias σ (P₀ of Hp), Pa.
     pub p_bias_sigma_pa: f64,
-    /// Without a vane the angle is held at its initial guess; this is the σ of that guess
-    /// (lower bound of its variance while the vane is absent), deg.
+    /// Without an AoA vane the angle of attack is held at its initial guess; this is the σ of
+    /// that guess (lower bound of its variance while the vane is absent), deg.
     pub no_vane_angle_sigma_deg: f64,
+    /// The same for the sideslip without an AoS vane, deg: a fixed wing with turn coordination
+    /// flies within about a degree of zero sideslip, and the sideslip is what turns a held
+    /// angle into a horizontal velocity error (25 m/s × 1° = 0.44 m/s).
+    #[serde(default = "default_no_vane_aos_sigma_deg")]
+    pub no_vane_aos_sigma_deg: f64,
+}
+
+fn default_no_vane_aos_sigma_deg() -> f64 {
+    1.0
 }
 
 impl Default for AirDataFilterConfig {
@@ -75,6 +84,7 @@ impl Default for AirDataFilterConfig {
             p_noise_sigma_pa: 100.0,
             p_bias_sigma_pa: 100.0,
             no_vane_angle_sigma_deg: 3.0,
+            no_vane_aos_sigma_deg: default_no_vane_aos_sigma_deg(),
         }
     }
 }
@@ -386,6 +396,7 @@ impl InsConfig {
         positive("air.p_noise_sigma_pa", a.p_noise_sigma_pa)?;
         non_negative("air.p_bias_sigma_pa", a.p_bias_sigma_pa)?;
         positive("air.no_vane_angle_sigma_deg", a.no_vane_angle_sigma_deg)?;
+        positive("air.no_vane_aos_sigma_deg", a.no_vane_aos_sigma_deg)?;
         let t = &self.attitude;
         non_negative("attitude.q_attitude_rad2", t.q_attitude_rad2)?;
         non_negative("attitude.q_w_nb_rad2ps2", t.q_w_nb_rad2ps2)?;

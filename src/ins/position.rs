@@ -609,8 +609,9 @@ const DR_B: usize = 9;
 /// `δv = δw + C (δg + δb) + δv_air`: the frozen-wind error `δw` (a random constant), the gust
 /// the frozen wind cannot follow `δg = −v_gust` (body axes, first-order Gauss–Markov with
 /// the measured intensity and correlation time `L/V`), the air-velocity bias `δb` (Pitot and
-/// vane biases through `∂v_air/∂(V, α, β)`, or without a vane the held angle's error
-/// `no_vane_angle_sigma_deg`; constant in body axes) and the white remainder
+/// vane biases through `∂v_air/∂(V, α, β)`, or without vanes the held angles' errors
+/// `no_vane_angle_sigma_deg`, `no_vane_aos_sigma_deg`; constant in body axes) and the white
+/// remainder
 /// `δv_air` (attitude and air-data filter covariances). `δw` is correlated with `δg` (the
 /// low-pass holds part of the last gusts) and with `δb` (the wind estimate absorbed the
 /// bias at the low-passed attitude `C̄`: `δw ∋ −C̄ δb`).
@@ -653,21 +654,25 @@ impl DeniedNav {
         let tas = air_x[air_data::TAS];
         let (_, j_air) = v_tas_b(tas, air_x[air_data::AOA], air_x[air_data::AOS]);
         // A vane's bias, or without the vane the held guess's error (its whole uncertainty).
-        let angle_sigma_deg = |held: bool, vane_bias_deg: f64| {
-            if held {
-                air_cfg.no_vane_angle_sigma_deg
-            } else {
-                vane_bias_deg
-            }
+        let angle_sigma_deg = |held: bool, held_deg: f64, vane_bias_deg: f64| {
+            if held { held_deg } else { vane_bias_deg }
         };
         let bias_var = Matrix3::from_diagonal(&Vector3::new(
             air_cfg.tas_bias_sigma_mps.powi(2),
-            angle_sigma_deg(held_angles[0], air_cfg.aoa_bias_sigma_deg)
-                .to_radians()
-                .powi(2),
-            angle_sigma_deg(held_angles[1], air_cfg.aos_bias_sigma_deg)
-                .to_radians()
-                .powi(2),
+            angle_sigma_deg(
+                held_angles[0],
+                air_cfg.no_vane_angle_sigma_deg,
+                air_cfg.aoa_bias_sigma_deg,
+            )
+            .to_radians()
+            .powi(2),
+            angle_sigma_deg(
+                held_angles[1],
+                air_cfg.no_vane_aos_sigma_deg,
+                air_cfg.aos_bias_sigma_deg,
+            )
+            .to_radians()
+            .powi(2),
         ));
         let p_bb = j_air * bias_var * j_air.transpose();
         let (gust_var_b, held) = est.gust(tas);

@@ -920,9 +920,10 @@ fn bad_input_is_rejected_counted_and_never_fused() {
 #[test]
 fn without_vanes_the_angles_are_held_and_the_filters_run() {
     // Degraded mode: no vanes. AoA is held at its initial guess (here 1° off the truth) with
-    // the no-vane σ (3°), AoS at 0; the rest of the INS is unaffected within its covariances
-    // (the AoA error tilts the air-relative velocity by 1°, i.e. ≈ 0.5 m/s of vertical wind,
-    // which the wind covariance carries through the 3° σ).
+    // the no-vane σ (3°), AoS at 0 (σ 1°); the rest of the INS is unaffected within its
+    // covariances (the AoA error tilts the air-relative velocity by 1°, i.e. ≈ 0.5 m/s of
+    // vertical wind, which the low-passed wind absorbs while GNSS is there and the GNSS-denied
+    // covariance carries as a body-axis bias).
     let mut synth = Synth::new(turn_motion(10.0), 100.0, 9);
     synth.vanes = false;
     synth.gnss_until_us = 150_000_001;
@@ -930,17 +931,15 @@ fn without_vanes_the_angles_are_held_and_the_filters_run() {
     let guess = synth.m.aoa + 1f64.to_radians();
     init.aoa_rad = guess;
     let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
-    let sigma_floor = InsConfig::default()
-        .air
-        .no_vane_angle_sigma_deg
-        .to_radians();
+    let air = InsConfig::default().air;
+    let floors = [air.no_vane_angle_sigma_deg, air.no_vane_aos_sigma_deg].map(f64::to_radians);
     let mut last = None;
     run(&mut synth, &mut ins, 250.0, |_, tr, sol| {
         check_consistent(tr, sol);
         assert!(att_err(tr, sol).norm() < ATT_NORM_MAX_RAD);
         assert_eq!((sol.aoa_rad, sol.aos_rad), (guess, 0.0));
-        for i in [1, 2] {
-            assert!(sol.cov.air_data[(i, i)].sqrt() >= sigma_floor);
+        for (i, floor) in [1, 2].into_iter().zip(floors) {
+            assert!(sol.cov.air_data[(i, i)].sqrt() >= floor);
         }
         last = Some(*sol);
     });
