@@ -923,8 +923,26 @@ async fn ardupilot_properties_one_at_a_time() {
     for (name, vehicle, toml) in [
         (
             "ardupilot (drift, 100 ms lag)",
-            base,
+            VehicleConfig {
+                gyro_drift: true,
+                ..base
+            },
             ardupilot_daemon_toml(50.0, 25.0, ODOMETRY_HZ),
+        ),
+        (
+            "drift, daemon with config/ianav.toml's drifting-gyro random walk",
+            VehicleConfig {
+                gyro_drift: true,
+                ..base
+            },
+            ardupilot_daemon_toml(50.0, 25.0, ODOMETRY_HZ).replace(
+                "[navigation]\n",
+                concat!(
+                    "[navigation]\nins_config = \"",
+                    env!("CARGO_MANIFEST_DIR"),
+                    "/../config/ins.toml\"\n"
+                ),
+            ) + "[ins.attitude]\nq_e_gyr_rad2ps2 = 1.27e-10\n",
         ),
         (
             "no gyro drift",

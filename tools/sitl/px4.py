@@ -414,6 +414,11 @@ class Harness:
         nav = cfg.setdefault("navigation", {})
         if nav.get("ins_config"):
             nav["ins_config"] = str((base.parent / nav["ins_config"]).resolve())
+        if self.args.q_e_gyr is not None:
+            # SIH's gyros do not drift: the paper's gyro model fits them better than the
+            # drifting-MEMS random walk of config/ianav.toml.
+            cfg.setdefault("ins", {}).setdefault("attitude", {})["q_e_gyr_rad2ps2"] = \
+                self.args.q_e_gyr
         path.write_text(to_toml(cfg))
 
     def start_daemon(self, logs: Path):
@@ -899,6 +904,8 @@ def main(argv=None):
     ap.add_argument("--config", default=str(REPO / "config" / "ianav.toml"),
                     help="daemon configuration; link, clock and output keys are overridden")
     ap.add_argument("--mode", choices=("alone", "open", "closed"), required=True)
+    ap.add_argument("--q-e-gyr", type=float, default=None,
+                    help="daemon [ins.attitude] q_e_gyr_rad2ps2 (default: the config's)")
     ap.add_argument("--out", required=True, help="flight directory to write")
     ap.add_argument("--wind-mps", type=float, default=6.0)
     ap.add_argument("--wind-from-deg", type=float, default=270.0)
