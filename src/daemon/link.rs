@@ -437,9 +437,9 @@ async fn handle_raw(
             });
             let imu_ready =
                 st.recent_imu_us.len() as f64 >= MIN_IMU_RATE_HZ * INIT_IMU_WINDOW_US as f64 * 1e-6;
-            // GPS_RAW_INT has no down velocity: the INS starts from a fix that has GLOBAL_POSITION_INT's
-            // (a descent taken for level flight throws the first seconds off), unless the
-            // autopilot never sends it.
+            // GPS_RAW_INT has no down velocity: the INS starts from a fix that has
+            // GLOBAL_POSITION_INT's (a descent taken for level flight throws the first seconds
+            // off), unless the autopilot never sends it.
             let vd_ready = st.dec.last_fix_has_vertical_velocity()
                 || st.dec.counters().gnss_no_vd >= INIT_FIXES_WITHOUT_VD;
             let flying = st
