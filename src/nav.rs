@@ -8,6 +8,7 @@
 //! vehicle tells it (first GNSS fix, the autopilot's attitude): [`Navigator::initialise`]
 //! takes that [`InsInit`]; events pushed before it are counted and dropped.
 
+use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
 use crate::sensors::SensorEvent;
 
@@ -39,6 +40,8 @@ pub struct NavigatorStats {
     pub frames: u64,
     /// (Re)initialisations.
     pub initialisations: u64,
+    /// Times the IMU was found noisier than configured (see [`Navigator::imu_noise`]).
+    pub imu_noisier_than_configured: u64,
 }
 
 /// The navigation core.
@@ -48,6 +51,8 @@ pub struct Navigator {
     ins: Option<Ins>,
     stats: NavigatorStats,
     reset_counter: u8,
+    imu_noise: ImuNoiseMonitor,
+    imu_noisy: bool,
 }
 
 impl Navigator {
@@ -59,6 +64,8 @@ impl Navigator {
             ins: None,
             stats: NavigatorStats::default(),
             reset_counter: 0,
+            imu_noise: ImuNoiseMonitor::default(),
+            imu_noisy: false,
         })
     }
 
@@ -85,8 +92,10 @@ impl Navigator {
 
     /// Feed one event; an accepted IMU sample returns the solution at its time.
     pub fn push(&mut self, event: &SensorEvent) -> Option<NavSolution> {
-        if matches!(event, SensorEvent::Frame(_)) {
-            self.stats.frames += 1;
+        match event {
+            SensorEvent::Frame(_) => self.stats.frames += 1,
+            SensorEvent::Imu(s) => self.check_imu_noise(s),
+            _ => {}
         }
         let Some(ins) = self.ins.as_mut() else {
             self.stats.events_before_init += 1;
@@ -97,6 +106,36 @@ impl Navigator {
             vision: VisionStatus::Inactive,
             reset_counter: self.reset_counter,
         })
+    }
+
+    /// The IMU's measured white noise against the configuration (`None` until ~5 s of IMU).
+    pub fn imu_noise(&self) -> Option<ImuNoise> {
+        self.imu_noise.noise(&self.cfg)
+    }
+
+    /// Whether the IMU is currently noisier than configured (ratio over
+    /// [`NOISY_RATIO`], until it falls under [`QUIET_RATIO`]).
+    pub fn imu_noisier_than_configured(&self) -> bool {
+        self.imu_noisy
+    }
+
+    fn check_imu_noise(&mut self, s: &crate::sensors::ImuSample) {
+        // The estimate changes only when a window closes.
+        if !self.imu_noise.push(s) {
+            return;
+        }
+        let Some(n) = self.imu_noise() else { return };
+        if !self.imu_noisy && n.exceeds(NOISY_RATIO) {
+            self.imu_noisy = true;
+            self.stats.imu_noisier_than_configured += 1;
+        } else if self.imu_noisy && !n.exceeds(QUIET_RATIO) {
+            self.imu_noisy = false;
+        }
+    }
+
+    /// The INS configuration.
+    pub fn config(&self) -> &InsConfig {
+        &self.cfg
     }
 
     /// Counters of the navigator.

@@ -92,6 +92,7 @@ pub fn spawn(
         .name("ianav-nav".to_owned())
         .spawn(move || {
             let mut since_sync = 0_u32;
+            let mut noisy_reported = 0_u64;
             let mut last: Option<crate::nav::NavSolution> = None;
             // (first, newest) fix time of the current run of fixes while GNSS-denied.
             let mut back: Option<(u64, u64)> = None;
@@ -176,6 +177,22 @@ pub fn spawn(
                 if since_sync >= 50 || rx.is_empty() {
                     since_sync = 0;
                     let (n, i) = (*nav.stats(), nav.ins_stats().copied());
+                    if n.imu_noisier_than_configured > noisy_reported {
+                        noisy_reported = n.imu_noisier_than_configured;
+                        if let Some(m) = nav.imu_noise() {
+                            let cfg = nav.config();
+                            tracing::warn!(
+                                gyro_ratio = m.gyro_ratio,
+                                accel_ratio = m.accel_ratio,
+                                period_s = m.period_s,
+                                "IMU noisier than configured: the INS over-trusts its \
+                                 propagation; set [ins.attitude] r_gyro_rad2ps2 ≥ {:.2e} and \
+                                 [ins.position] q_velocity_m2ps2 ≥ {:.2e} (docs/INS.md)",
+                                m.matching_r_gyro_rad2ps2(cfg),
+                                m.matching_q_velocity_m2ps2(cfg)
+                            );
+                        }
+                    }
                     shared.count(|c| {
                         c.nav = n;
                         c.ins = i;

@@ -20,6 +20,7 @@ mod air_data;
 mod attitude;
 mod config;
 mod ekf;
+pub mod imu_noise;
 mod position;
 #[cfg(test)]
 mod tests;
