@@ -41,6 +41,11 @@ from pymavlink.dialects.v20 import development as mavlink  # noqa: E402
 EARTH_RADIUS_M = 6371000.0  # PX4's map projection radius (CONSTANTS_RADIUS_OF_EARTH)
 REPO = Path(__file__).resolve().parents[2]
 
+# PX4 SIH's IMU noise as the daemon's INS configuration (see Harness.daemon_config).
+SIH_GYRO_VAR_RAD2PS2 = 2.3e-3
+SIH_ACCEL_VAR_M2PS4 = 0.42
+SIH_Q_VELOCITY_M2PS2 = 7e-5
+
 # PX4 custom_mode: main mode in bits 16..23, sub mode in 24..31.
 PX4_MAIN_MODES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
                   7: "STABILIZED", 8: "RATTITUDE"}
@@ -256,6 +261,8 @@ class Harness:
     def on_daemon(self, data, wall):
         msgs = self.parse("daemon", data)
         output = any(m.get_type() in ("ODOMETRY", "SET_GPS_GLOBAL_ORIGIN") for m in msgs)
+        extra_drop = self.args.drop_to_px4
+        dropped = any(extra_drop == "all" or m.get_type() in extra_drop.split(",") for m in msgs)
         if self.drop_timesync and any(m.get_type() == "TIMESYNC" for m in msgs):
             return
         with self.lock:
@@ -271,7 +278,7 @@ class Harness:
                     self.rec.interval_requests.append((wall, "daemon", int(m.param1), m.param2))
                 elif name == "STATUSTEXT":
                     self.rec.statustext.append((self.latest_t_us, "daemon", m.text))
-            if output and self.args.mode == "open":
+            if (output and self.args.mode == "open") or (extra_drop and dropped):
                 # Frames hold one message each (the daemon writes message by message).
                 self.rec.dropped_to_px4 += 1
                 return
@@ -336,7 +343,7 @@ class Harness:
             # Failsafes raised so that every mode flies the whole mission (see README).
             "COM_POS_FS_EPH": 400.0, "COM_POS_LOW_EPH": -1.0, "COM_VEL_FS_EVH": 100.0,
             "NAV_DLL_ACT": 0, "COM_DL_LOSS_T": 300, "NAV_RCL_ACT": 0, "COM_RCL_EXCEPT": 7,
-            "COM_RC_IN_MODE": 4, "SDLOG_MODE": -1, "MIS_TKO_LAND_REQ": 0,
+            "COM_RC_IN_MODE": 4, "SDLOG_MODE": 1 if a.ulog else -1, "MIS_TKO_LAND_REQ": 0,
             "EKF2_EV_CTRL": 0,
         }
         if a.mode == "closed":
@@ -419,6 +426,19 @@ class Harness:
             # drifting-MEMS random walk of config/ianav.toml.
             cfg.setdefault("ins", {}).setdefault("attitude", {})["q_e_gyr_rad2ps2"] = \
                 self.args.q_e_gyr
+        if self.args.sih_imu:
+            # SIH's IMU is far noisier than the paper's (sih.cpp: per-sample σ 0.5/1.7/1.4 m/s²
+            # and 0.14/0.07/0.03 rad/s, 250 Hz sensor_combined in cruise: 0.25/0.85/0.70 m/s²,
+            # 0.073/0.036/0.015 rad/s). As for any IMU, its noise goes in the INS's R and Q:
+            # the mean per-axis variance in the attitude filter's R, and the accelerometer
+            # noise as velocity random walk (0.85² m²/s⁴ × (10 ms)² per step, rounded up), not
+            # as position-filter R, which would smooth the specific force and lag it in turns.
+            ins = cfg.setdefault("ins", {})
+            att = ins.setdefault("attitude", {})
+            att.update({"r_gyro_rad2ps2": SIH_GYRO_VAR_RAD2PS2,
+                        "gyro_noise_var_rad2ps2": SIH_GYRO_VAR_RAD2PS2,
+                        "r_accel_white_m2ps4": SIH_ACCEL_VAR_M2PS4})
+            ins.setdefault("position", {})["q_velocity_m2ps2"] = SIH_Q_VELOCITY_M2PS2
         path.write_text(to_toml(cfg))
 
     def start_daemon(self, logs: Path):
@@ -617,6 +637,9 @@ class Harness:
             self.stop.set()
             time.sleep(0.3)
             self.stop_processes()
+            if a.ulog:  # PX4 writes under its rootfs: log/<date>/<time>.ulg
+                for i, f in enumerate(sorted((work / "rootfs").rglob("*.ulg"))):
+                    shutil.copy(f, logs / f"px4-{i}.ulg")
             shutil.rmtree(work, ignore_errors=True)
         self.t_arm, self.t_wind, self.t_cmd_loss = t_arm, t_wind, t_cmd_loss
         return self.analyse(out)
@@ -714,6 +737,9 @@ class Harness:
             "cruise_before_loss_s": a.cruise_s,
             "denied_s": a.denied_s,
             "timesync_dropped_by_router": self.drop_timesync,
+            "dropped_from_daemon_by_router": a.drop_to_px4,
+            "daemon_ins_for_sih_imu": bool(a.sih_imu),
+            "daemon_q_e_gyr": a.q_e_gyr,
             "px4_timesync_resets": count_in(Path(a.out) / "logs" / "px4.log",
                                             "time jump detected"),
             "px4_params": {k: v for k, v in self.px4_params().items()},
@@ -906,6 +932,8 @@ def main(argv=None):
     ap.add_argument("--mode", choices=("alone", "open", "closed"), required=True)
     ap.add_argument("--q-e-gyr", type=float, default=None,
                     help="daemon [ins.attitude] q_e_gyr_rad2ps2 (default: the config's)")
+    ap.add_argument("--sih-imu", action="store_true",
+                    help="configure the daemon's INS for SIH's IMU noise (measured, see daemon_config)")
     ap.add_argument("--out", required=True, help="flight directory to write")
     ap.add_argument("--wind-mps", type=float, default=6.0)
     ap.add_argument("--wind-from-deg", type=float, default=270.0)
@@ -919,6 +947,11 @@ def main(argv=None):
     ap.add_argument("--keep-timesync", action="store_true",
                     help="closed: forward TIMESYNC between PX4 and the daemon (see drop_timesync)")
     ap.add_argument("--ev-delay-ms", type=float, default=0.0, help="EKF2_EV_DELAY (closed)")
+    ap.add_argument("--drop-to-px4", default="",
+                    help="comma-separated message names (or 'all') never passed from the daemon "
+                         "to PX4, in any mode: isolates what of the daemon's traffic PX4 reacts to")
+    ap.add_argument("--ulog", action="store_true",
+                    help="PX4 logs from boot (SDLOG_MODE 1); the .ulg files go to OUT/logs/")
     ap.add_argument("--csv-period-s", type=float, default=0.2, help="flight.csv row period")
     ap.add_argument("--short", action="store_true", help="quick check: 60 s cruise, 120 s denied")
     a = ap.parse_args(argv)
