@@ -722,45 +722,18 @@ fn validate_connection(s: &str) -> Result<(), ConfigError> {
     }
 }
 
-/// Decode a 32-byte key from 64 hex digits or standard base64.
+/// Decode a 32-byte key from 64 hex digits or standard (padded) base64.
 fn decode_key(s: &str) -> Option<[u8; 32]> {
+    use base64::Engine as _;
     let s = s.trim();
     let bytes = if s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit()) {
         (0..32)
             .map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).ok())
             .collect::<Option<Vec<u8>>>()?
     } else {
-        decode_base64(s)?
+        base64::engine::general_purpose::STANDARD.decode(s).ok()?
     };
     bytes.try_into().ok()
-}
-
-fn decode_base64(s: &str) -> Option<Vec<u8>> {
-    let val = |c: u8| -> Option<u32> {
-        Some(match c {
-            b'A'..=b'Z' => u32::from(c - b'A'),
-            b'a'..=b'z' => u32::from(c - b'a') + 26,
-            b'0'..=b'9' => u32::from(c - b'0') + 52,
-            b'+' => 62,
-            b'/' => 63,
-            _ => return None,
-        })
-    };
-    let trimmed = s.trim_end_matches('=');
-    if !s.len().is_multiple_of(4) || s.len() - trimmed.len() > 2 {
-        return None;
-    }
-    let mut out = Vec::with_capacity(trimmed.len() * 3 / 4);
-    let (mut acc, mut bits) = (0_u32, 0_u32);
-    for c in trimmed.bytes() {
-        acc = (acc << 6) | val(c)?;
-        bits += 6;
-        if bits >= 8 {
-            bits -= 8;
-            out.push(((acc >> bits) & 0xff) as u8);
-        }
-    }
-    Some(out)
 }
 
 #[cfg(test)]

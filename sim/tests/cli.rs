@@ -155,7 +155,10 @@ fn a_missing_config_directory_is_refused_not_replaced_by_the_defaults() {
     let file = dir.join("a-file");
     std::fs::write(&file, "").unwrap();
     for (config_dir, needle) in [
-        ("/nonexistent/ianav-config", "--config-dir /nonexistent/ianav-config"),
+        (
+            "/nonexistent/ianav-config",
+            "--config-dir /nonexistent/ianav-config",
+        ),
         (file.to_str().unwrap(), "not a directory"),
     ] {
         let out = ianav_sim(&[

@@ -22,7 +22,6 @@ pub mod health;
 pub mod intervals;
 pub mod link;
 pub mod nav_thread;
-pub mod notify;
 pub mod publish;
 
 use std::sync::{Arc, Mutex, MutexGuard};
@@ -526,13 +525,18 @@ async fn monitor(
     mut stop: watch::Receiver<bool>,
 ) {
     use apm::MavSeverity as S;
-    // systemd: STATUS while waiting; READY=1 when the estimator first runs (so the start
-    // timeout, not the watchdog, covers the wait for the first fix); WATCHDOG=1 each second
-    // only while it runs.
-    let notifier = notify::Notifier::from_env();
-    if let Err(e) = notifier.notify("STATUS=waiting for the autopilot and a GNSS fix") {
-        tracing::warn!("sd_notify: {e}");
-    }
+    // systemd (sd_notify(3); no-ops without $NOTIFY_SOCKET): STATUS while waiting; READY=1
+    // when the estimator first runs, so the start timeout, not the watchdog, covers the wait
+    // for the first fix; then WATCHDOG=1 each second only while solutions come from IMU
+    // messages received less than MAX_SOLUTION_AGE_US ago (`running` below: the INS yields a
+    // solution only on an IMU sample), i.e. only while the navigation processes IMU samples.
+    use sd_notify::NotifyState as N;
+    let notify = |states: &[N]| {
+        if let Err(e) = sd_notify::notify(states) {
+            tracing::warn!("sd_notify: {e}");
+        }
+    };
+    notify(&[N::Status("waiting for the autopilot and a GNSS fix")]);
     let mut ready_sent = false;
     let mut flags = Flags::default();
     let mut link_lost_at: Option<u64> = None;
@@ -633,16 +637,13 @@ async fn monitor(
                 (true, true) => Health::Critical,
             };
             outbox.send(apm::MavMessage::HEARTBEAT(mavlink_out::heartbeat(health)));
-            // The watchdog is fed only while the estimator runs.
-            let msg = match (running, ready_sent) {
-                (true, false) => Some("READY=1\nSTATUS=estimator running\nWATCHDOG=1"),
-                (true, true) => Some("WATCHDOG=1"),
-                (false, _) => None,
-            };
-            if let Some(m) = msg {
-                ready_sent = true;
-                if let Err(e) = notifier.notify(m) {
-                    tracing::warn!("sd_notify: {e}");
+            // The watchdog is fed only while the estimator runs on fresh IMU samples.
+            if running {
+                if ready_sent {
+                    notify(&[N::Watchdog]);
+                } else {
+                    ready_sent = true;
+                    notify(&[N::Ready, N::Status("estimator running"), N::Watchdog]);
                 }
             }
         }
