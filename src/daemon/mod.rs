@@ -22,7 +22,9 @@ pub mod health;
 pub mod intervals;
 pub mod link;
 pub mod nav_thread;
+pub mod preflight;
 pub mod publish;
+pub mod transport;
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant, SystemTime};
