@@ -116,7 +116,12 @@ fn check_config_refuses_what_run_refuses_with_the_same_error() {
             None,
             "logging.level",
         ),
-        ("rust-log", Some(ok.to_owned()), Some("ianav=loud"), "RUST_LOG"),
+        (
+            "rust-log",
+            Some(ok.to_owned()),
+            Some("ianav=loud"),
+            "RUST_LOG",
+        ),
         (
             "connection-syntax",
             Some(ok.replace("udpin:127.0.0.1:14540", "udp:127.0.0.1:14540")),

@@ -49,8 +49,12 @@ pub(super) async fn run(
             let capture = tokio::task::spawn_blocking(move || {
                 super::camera_cv::run_blocking(cfg, clock, out, stop);
             });
-            if let Err(e) = capture.await {
-                tracing::error!("camera capture thread failed: {e}");
+            // A panic of the capture thread is the camera task's own: the supervisor
+            // (`daemon::run`) restarts it or stops the daemon, never a silently dead camera.
+            if let Err(e) = capture.await
+                && e.is_panic()
+            {
+                std::panic::resume_unwind(e.into_panic());
             }
         }
         // No camera, or a source this build cannot open (refused by the configuration).
