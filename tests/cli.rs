@@ -72,11 +72,11 @@ fn run_briefly(file: &std::path::Path, env: &[(&str, &str)]) -> (Option<i32>, St
     }
     let mut child = cmd.spawn().expect("the ianav binary runs");
     let end = std::time::Instant::now() + std::time::Duration::from_secs(10);
-    while child.try_wait().unwrap().is_none() && std::time::Instant::now() < end {
+    while child.try_wait().expect("wait").is_none() && std::time::Instant::now() < end {
         std::thread::sleep(std::time::Duration::from_millis(20));
     }
     let _ = child.kill();
-    let out = child.wait_with_output().unwrap();
+    let out = child.wait_with_output().expect("ianav ends");
     (
         out.status.code(),
         String::from_utf8_lossy(&out.stderr).into_owned(),
