@@ -725,12 +725,13 @@ pub async fn run(
             }
         }
     };
-    // The reader stops when the navigation thread is gone: name the thread then.
-    let nav_ended = matches!(ending, Ending::NavEnded) || nav_join.is_finished();
+    // The reader stops when the navigation thread is gone, maybe seen first: name the thread
+    // then (its end is signalled before its event receiver is dropped).
+    let nav_ended = matches!(ending, Ending::NavEnded) || nav_exit.try_recv().is_ok();
     let failed = match &ending {
         Ending::Stopped => None,
-        _ if nav_ended => Some(NAV),
         Ending::NavEnded => Some(NAV),
+        _ if nav_ended => Some(NAV),
         Ending::Failed(
             DaemonError::WorkerPanicked { worker, .. } | DaemonError::WorkerStopped { worker },
         ) => Some(*worker),
@@ -764,14 +765,15 @@ pub async fn run(
     let nav_result = tokio::task::spawn_blocking(move || nav_join.join())
         .await
         .map_err(|e| DaemonError::Thread(e.to_string()))?;
-    // A navigation panic first: the reader then stops too, for that reason.
+    // The navigation thread's end first: the reader then stops too, for that reason.
     match (nav_result, ending) {
         (Err(p), _) => Err(DaemonError::WorkerPanicked {
             worker: NAV,
             message: panic_message(p.as_ref()),
         }),
-        (Ok(()), Ending::Failed(e)) => Err(e),
         (Ok(()), Ending::NavEnded) => Err(DaemonError::WorkerStopped { worker: NAV }),
+        (Ok(()), _) if nav_ended => Err(DaemonError::WorkerStopped { worker: NAV }),
+        (Ok(()), Ending::Failed(e)) => Err(e),
         (Ok(()), Ending::Stopped) => Ok(()),
     }
 }
