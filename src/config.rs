@@ -9,20 +9,22 @@ use serde::Deserialize;
 
 use crate::ins::{InsConfig, InsConfigError};
 
-/// Why a configuration was rejected.
+/// Why a configuration was rejected. Each message is complete on its own line: no variant
+/// also returns its cause as `source()`, which printed the same text twice (once in the
+/// message, once as the cause) at start-up.
 #[derive(Debug, thiserror::Error)]
 pub enum ConfigError {
     /// The file could not be read.
-    #[error("{path}: {source}")]
+    #[error("{path}: {error}")]
     Read {
         /// The file.
         path: PathBuf,
         /// The I/O error.
-        source: std::io::Error,
+        error: std::io::Error,
     },
     /// Not TOML, a wrong type, or an unknown key (the TOML error names it and its line).
     #[error("{0}")]
-    Toml(#[from] toml::de::Error),
+    Toml(toml::de::Error),
     /// A value outside its domain.
     #[error("{key} = {value}: {reason}")]
     Invalid {
@@ -34,16 +36,20 @@ pub enum ConfigError {
         reason: String,
     },
     /// The INS configuration (inline `[ins]` or the file named by `navigation.ins_config`).
-    #[error("{context}: {source}")]
+    #[error("{context}: {error}")]
     Ins {
         /// Where the INS configuration came from.
         context: String,
         /// The INS error (it names the INS key).
-        source: InsConfigError,
+        error: InsConfigError,
     },
 }
 
-fn invalid(key: &str, value: impl std::fmt::Display, reason: impl Into<String>) -> ConfigError {
+pub(crate) fn invalid(
+    key: &str,
+    value: impl std::fmt::Display,
+    reason: impl Into<String>,
+) -> ConfigError {
     ConfigError::Invalid {
         key: key.to_owned(),
         value: value.to_string(),
@@ -51,11 +57,21 @@ fn invalid(key: &str, value: impl std::fmt::Display, reason: impl Into<String>) 
     }
 }
 
+/// A number as written in a file: plain, or in exponent form when tiny or huge (`1e-300`
+/// printed plain is 300 digits long).
+fn number(v: f64) -> String {
+    if v == 0.0 || !v.is_finite() || (1e-4..1e15).contains(&v.abs()) {
+        v.to_string()
+    } else {
+        format!("{v:e}")
+    }
+}
+
 fn in_range(key: &str, v: f64, lo: f64, hi: f64) -> Result<(), ConfigError> {
     if v.is_finite() && (lo..=hi).contains(&v) {
         Ok(())
     } else {
-        Err(invalid(key, v, format!("must be in [{lo}, {hi}]")))
+        Err(invalid(key, number(v), format!("must be in [{lo}, {hi}]")))
     }
 }
 
@@ -401,8 +417,8 @@ pub struct NavigationConfig {
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct LoggingConfig {
-    /// `tracing` filter (`error`, `warn`, `info`, `debug`, `trace`, or an env-filter
-    /// directive); `RUST_LOG` overrides it.
+    /// `tracing` filter (`error`, `warn`, `info`, `debug`, `trace`, or env-filter directives),
+    /// parsed strictly; a `RUST_LOG` set in the environment replaces it (`daemon::preflight`).
     #[serde(default = "default_level")]
     pub level: String,
     /// Period of the counter summary in the log, s (0 = never).
@@ -480,17 +496,17 @@ fn merge_tables(base: &mut toml::Table, over: &toml::Table) {
 impl DaemonConfig {
     /// Read and validate a file; `navigation.ins_config` is resolved against its directory.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
-        let text = std::fs::read_to_string(path).map_err(|source| ConfigError::Read {
+        let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.to_owned(),
-            source,
+            error,
         })?;
         Self::from_toml_str(&text, path.parent())
     }
 
     /// Parse and validate TOML text; `base_dir` resolves a relative `navigation.ins_config`.
     pub fn from_toml_str(text: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
-        let raw: RawConfig = toml::from_str(text)?;
-        let ins_error = |context: String| move |source| ConfigError::Ins { context, source };
+        let raw: RawConfig = toml::from_str(text).map_err(ConfigError::Toml)?;
+        let ins_error = |context: String| move |error| ConfigError::Ins { context, error };
         let ins = if raw.navigation.ins_config.is_empty() {
             match &raw.ins {
                 Some(table) => {
@@ -507,9 +523,9 @@ impl DaemonConfig {
                 Some(dir) if p.is_relative() => dir.join(p),
                 _ => p.to_owned(),
             };
-            let mut text = std::fs::read_to_string(&p).map_err(|source| ConfigError::Read {
+            let mut text = std::fs::read_to_string(&p).map_err(|error| ConfigError::Read {
                 path: p.clone(),
-                source,
+                error,
             })?;
             let mut context = format!("navigation.ins_config ({})", p.display());
             // An [ins] table next to the file overrides the file's keys.
@@ -562,7 +578,16 @@ impl DaemonConfig {
             ));
         }
         in_range("mavlink.link_timeout_s", m.link_timeout_s, 0.5, 60.0)?;
-        in_range("mavlink.timesync_rate_hz", m.timesync_rate_hz, 0.0, 50.0)?;
+        // 0 = off; below 0.1 Hz the request period (1 / rate) is useless and, near 0, beyond
+        // what a `Duration` holds (1e-300 panicked the TIMESYNC task).
+        let r = m.timesync_rate_hz;
+        if r != 0.0 && !(r.is_finite() && (0.1..=50.0).contains(&r)) {
+            return Err(invalid(
+                "mavlink.timesync_rate_hz",
+                number(r),
+                "must be 0 (no requests) or in [0.1, 50]",
+            ));
+        }
         in_range(
             "mavlink.timesync_max_rtt_ms",
             m.timesync_max_rtt_ms,
@@ -679,6 +704,8 @@ impl DaemonConfig {
         if l.level.trim().is_empty() {
             return Err(invalid("logging.level", "\"\"", "must not be empty"));
         }
+        parse_log_filter(&l.level)
+            .map_err(|reason| invalid("logging.level", format!("{:?}", l.level), reason))?;
         in_range(
             "logging.counters_period_s",
             l.counters_period_s,
@@ -722,45 +749,27 @@ fn validate_connection(s: &str) -> Result<(), ConfigError> {
     }
 }
 
-/// Decode a 32-byte key from 64 hex digits or standard base64.
+/// Decode a 32-byte key from 64 hex digits or standard (padded) base64.
 fn decode_key(s: &str) -> Option<[u8; 32]> {
+    use base64::Engine as _;
     let s = s.trim();
     let bytes = if s.len() == 64 && s.bytes().all(|b| b.is_ascii_hexdigit()) {
         (0..32)
             .map(|i| u8::from_str_radix(&s[2 * i..2 * i + 2], 16).ok())
             .collect::<Option<Vec<u8>>>()?
     } else {
-        decode_base64(s)?
+        base64::engine::general_purpose::STANDARD.decode(s).ok()?
     };
     bytes.try_into().ok()
 }
 
-fn decode_base64(s: &str) -> Option<Vec<u8>> {
-    let val = |c: u8| -> Option<u32> {
-        Some(match c {
-            b'A'..=b'Z' => u32::from(c - b'A'),
-            b'a'..=b'z' => u32::from(c - b'a') + 26,
-            b'0'..=b'9' => u32::from(c - b'0') + 52,
-            b'+' => 62,
-            b'/' => 63,
-            _ => return None,
-        })
-    };
-    let trimmed = s.trim_end_matches('=');
-    if !s.len().is_multiple_of(4) || s.len() - trimmed.len() > 2 {
-        return None;
-    }
-    let mut out = Vec::with_capacity(trimmed.len() * 3 / 4);
-    let (mut acc, mut bits) = (0_u32, 0_u32);
-    for c in trimmed.bytes() {
-        acc = (acc << 6) | val(c)?;
-        bits += 6;
-        if bits >= 8 {
-            bits -= 8;
-            out.push(((acc >> bits) & 0xff) as u8);
-        }
-    }
-    Some(out)
+/// Parse a `tracing` filter (`logging.level` or `RUST_LOG`) strictly, as `ianav run` does:
+/// an unknown level or a malformed directive is an error, not silently dropped.
+pub fn parse_log_filter(s: &str) -> Result<tracing_subscriber::EnvFilter, String> {
+    // The parser's error repeats its cause in `source()`: keep the message only.
+    tracing_subscriber::EnvFilter::builder()
+        .parse(s)
+        .map_err(|e| e.to_string())
 }
 
 #[cfg(test)]
@@ -826,6 +835,23 @@ mod tests {
         assert!(e.starts_with("mavlink.refuse_unsigned"), "{e}");
         let e = error(&MINIMAL.replace("[output]", "signing_key = \"abc\"\n[output]"));
         assert!(e.starts_with("mavlink.signing_key"), "{e}");
+        // Accepted before, then panicked or misbehaved at run time (issue 14).
+        let e = error(&MINIMAL.replace("[output]", "timesync_rate_hz = 1e-300\n[output]"));
+        assert_eq!(
+            e,
+            "mavlink.timesync_rate_hz = 1e-300: must be 0 (no requests) or in [0.1, 50]"
+        );
+        assert!(parse(&MINIMAL.replace("[output]", "timesync_rate_hz = 0.0\n[output]")).is_ok());
+        let e = error(&format!(
+            "{MINIMAL}[logging]\nlevel = \"info,ianav=loud\"\n"
+        ));
+        assert!(e.starts_with("logging.level = \"info,ianav=loud\":"), "{e}");
+        assert!(
+            parse(&format!(
+                "{MINIMAL}[logging]\nlevel = \"warn,ianav=debug\"\n"
+            ))
+            .is_ok()
+        );
         // The INS key is named too.
         let e = error(&format!("{MINIMAL}[ins]\nimu_gap_s = -1.0\n"));
         assert!(e.contains("imu_gap_s"), "{e}");

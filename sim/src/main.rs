@@ -335,6 +335,13 @@ fn read_optional(dir: Option<&PathBuf>, name: &str) -> Result<Option<(PathBuf, S
 fn setup(args: &SetupArgs) -> Result<FlightSetup> {
     let mut setup = FlightSetup::builtin(args.scenario)?;
     let dir = args.config_dir.as_ref();
+    // Each file in it is optional, so a mistyped directory would silently fly the defaults.
+    if let Some(d) = dir {
+        let meta = std::fs::metadata(d).with_context(|| format!("--config-dir {}", d.display()))?;
+        if !meta.is_dir() {
+            bail!("--config-dir {}: not a directory", d.display());
+        }
+    }
     if let Some((path, text)) =
         read_optional(dir, &format!("scenarios/scenario{}.toml", args.scenario))?
     {

@@ -148,3 +148,30 @@ fn bad_configuration_files_name_the_field() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn a_missing_config_directory_is_refused_not_replaced_by_the_defaults() {
+    let dir = temp_dir("nodir");
+    let file = dir.join("a-file");
+    std::fs::write(&file, "").unwrap();
+    for (config_dir, needle) in [
+        (
+            "/nonexistent/ianav-config",
+            "--config-dir /nonexistent/ianav-config",
+        ),
+        (file.to_str().unwrap(), "not a directory"),
+    ] {
+        let out = ianav_sim(&[
+            "run",
+            "--scenario",
+            "2",
+            "--config-dir",
+            config_dir,
+            "--out",
+            dir.join("never").to_str().unwrap(),
+        ]);
+        assert_clean_failure(&out, needle);
+        assert!(!dir.join("never").exists(), "nothing flown");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -7,7 +7,7 @@
 //!   server is retried with exponential back-off (0.2 s doubling up to `camera.retry_max_s`);
 //!   a stream silent for 3 × `camera.timeout_s` is reconnected; a stall shorter than that
 //!   simply resumes.
-//! - `directory`: PNG / PGM (binary P5) files in name order, converted to 8-bit grey. A file
+//! - `directory`: PNG / PGM files in name order, converted to 8-bit grey ([`decode_image`]). A file
 //!   whose stem is an integer is shown at that many µs after the first such file; otherwise
 //!   frames are paced at `camera.rate_hz`. Frames are stamped with the daemon's clock when
 //!   emitted (no autopilot clock is involved). The directory is read once.
@@ -49,8 +49,12 @@ pub(super) async fn run(
             let capture = tokio::task::spawn_blocking(move || {
                 super::camera_cv::run_blocking(cfg, clock, out, stop);
             });
-            if let Err(e) = capture.await {
-                tracing::error!("camera capture thread failed: {e}");
+            // A panic of the capture thread is the camera task's own: the supervisor
+            // (`daemon::run`) restarts it or stops the daemon, never a silently dead camera.
+            if let Err(e) = capture.await
+                && e.is_panic()
+            {
+                std::panic::resume_unwind(e.into_panic());
             }
         }
         // No camera, or a source this build cannot open (refused by the configuration).
@@ -184,53 +188,31 @@ pub fn list_images(dir: &Path) -> std::io::Result<Vec<PathBuf>> {
     Ok(v)
 }
 
-/// Decode a binary PGM (P5, maxval ≤ 255).
-pub fn decode_pgm(b: &[u8]) -> Option<(u32, u32, Vec<u8>)> {
-    // Header: "P5" whitespace width whitespace height whitespace maxval one-whitespace data;
-    // comments start with '#' and run to the end of the line.
-    let mut fields = Vec::with_capacity(4);
-    let mut i = 0;
-    while fields.len() < 4 {
-        while i < b.len() && (b[i].is_ascii_whitespace() || b[i] == b'#') {
-            if b[i] == b'#' {
-                while i < b.len() && b[i] != b'\n' {
-                    i += 1;
-                }
-            } else {
-                i += 1;
-            }
-        }
-        let start = i;
-        while i < b.len() && !b[i].is_ascii_whitespace() {
-            i += 1;
-        }
-        if start == i {
-            return None;
-        }
-        fields.push(std::str::from_utf8(&b[start..i]).ok()?);
-    }
-    if fields[0] != "P5" {
-        return None;
-    }
-    let w: u32 = fields[1].parse().ok()?;
-    let h: u32 = fields[2].parse().ok()?;
-    let maxval: u32 = fields[3].parse().ok()?;
-    if maxval == 0 || maxval > 255 || w == 0 || h == 0 {
-        return None;
-    }
-    let n = usize::try_from(u64::from(w) * u64::from(h)).ok()?;
-    let data = b.get(i + 1..i + 1 + n)?;
-    Some((w, h, data.to_vec()))
+/// Decode a PNG or PNM (PGM, PPM; binary or ASCII) image to 8-bit grey with the `image`
+/// crate, the format told by the magic bytes. PNM samples below a maxval of 255 are scaled to
+/// the full range, 16-bit ones reduced to 8 bits. Allocation is bounded like the frame stream:
+/// at most 4,096 × 4,096 pixels, [`MAX_DECODE_BYTES`] in all.
+pub fn decode_image(bytes: &[u8]) -> Option<(u32, u32, Vec<u8>)> {
+    let mut reader = image::ImageReader::new(std::io::Cursor::new(bytes))
+        .with_guessed_format()
+        .ok()?;
+    let mut limits = image::Limits::default();
+    limits.max_image_width = Some(4_096);
+    limits.max_image_height = Some(4_096);
+    limits.max_alloc = Some(MAX_DECODE_BYTES);
+    reader.limits(limits);
+    let img = reader.decode().ok()?.into_luma8();
+    let (w, h) = img.dimensions();
+    // The crate accepts an empty image; a frame is not empty.
+    (w > 0 && h > 0).then(|| (w, h, img.into_raw()))
 }
 
+/// Largest allocation while decoding one directory image: an RGBA frame of the largest size
+/// the frame stream carries ([`crate::io::frame_stream::MAX_PAYLOAD_BYTES`] grey pixels).
+pub const MAX_DECODE_BYTES: u64 = 4 * crate::io::frame_stream::MAX_PAYLOAD_BYTES as u64;
+
 fn load_image(path: &Path) -> Option<(u32, u32, Vec<u8>)> {
-    let bytes = std::fs::read(path).ok()?;
-    if bytes.starts_with(b"P5") {
-        return decode_pgm(&bytes);
-    }
-    let img = image::load_from_memory(&bytes).ok()?.into_luma8();
-    let (w, h) = img.dimensions();
-    Some((w, h, img.into_raw()))
+    decode_image(&std::fs::read(path).ok()?)
 }
 
 async fn directory(
@@ -306,11 +288,31 @@ mod tests {
     fn pgm_headers_with_comments_decode_and_bad_ones_do_not() {
         let mut b = b"P5\n# a comment\n3 2\n255\n".to_vec();
         b.extend_from_slice(&[1, 2, 3, 4, 5, 6]);
-        assert_eq!(decode_pgm(&b), Some((3, 2, vec![1, 2, 3, 4, 5, 6])));
-        assert_eq!(decode_pgm(&b[..b.len() - 1]), None, "truncated");
-        assert_eq!(decode_pgm(b"P6\n1 1\n255\n\0\0\0"), None);
-        assert_eq!(decode_pgm(b"P5\n1 1\n65535\n\0\0"), None);
-        assert_eq!(decode_pgm(b"P5\n0 1\n255\n"), None);
-        assert_eq!(decode_pgm(b""), None);
+        assert_eq!(decode_image(&b), Some((3, 2, vec![1, 2, 3, 4, 5, 6])));
+        assert_eq!(decode_image(&b[..b.len() - 1]), None, "truncated");
+        assert_eq!(decode_image(b"P5\n0 1\n255\n"), None);
+        assert_eq!(decode_image(b"P5\n1 1\n0\n\0"), None, "maxval 0");
+        assert_eq!(decode_image(b""), None);
+        assert_eq!(decode_image(b"not an image"), None);
+        // Beyond the hand-written P5 decoder this replaced: samples scaled to 8 bits.
+        assert_eq!(
+            decode_image(b"P5\n2 1\n15\n\x00\x0f"),
+            Some((2, 1, vec![0, 255]))
+        );
+        assert_eq!(
+            decode_image(b"P5\n1 1\n65535\n\xff\xff"),
+            Some((1, 1, vec![255]))
+        );
+        // Too large to be a frame: refused before allocating.
+        assert_eq!(decode_image(b"P5\n5000 5000\n255\n\0"), None);
+    }
+
+    #[test]
+    fn png_frames_decode_to_grey() {
+        let img = image::GrayImage::from_raw(2, 2, vec![0, 64, 128, 255]).unwrap();
+        let mut png = Vec::new();
+        img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
+            .unwrap();
+        assert_eq!(decode_image(&png), Some((2, 2, vec![0, 64, 128, 255])));
     }
 }

@@ -22,8 +22,9 @@ pub mod health;
 pub mod intervals;
 pub mod link;
 pub mod nav_thread;
-pub mod notify;
+pub mod preflight;
 pub mod publish;
+pub mod transport;
 
 use std::sync::{Arc, Mutex, MutexGuard};
 use std::time::{Duration, Instant, SystemTime};
@@ -55,9 +56,23 @@ pub enum DaemonError {
     /// The navigation core could not be built.
     #[error("navigation: {0}")]
     Nav(#[from] crate::ins::InsError),
-    /// The navigation thread could not be started or died.
+    /// The navigation thread could not be started or did not stop.
     #[error("navigation thread: {0}")]
     Thread(String),
+    /// A worker panicked: the daemon stops rather than run on without it.
+    #[error("{worker} panicked: {message}")]
+    WorkerPanicked {
+        /// The worker.
+        worker: &'static str,
+        /// The panic message.
+        message: String,
+    },
+    /// A worker ended while the daemon was running.
+    #[error("{worker} stopped unexpectedly")]
+    WorkerStopped {
+        /// The worker.
+        worker: &'static str,
+    },
 }
 
 /// The daemon's monotonic clock.
@@ -192,6 +207,8 @@ pub struct Counters {
     pub camera_connects: u64,
     /// STATUSTEXTs sent.
     pub statustexts: u64,
+    /// Workers restarted after a panic (the camera task: [`MAX_CAMERA_RESTARTS`]).
+    pub worker_restarts: u64,
     /// Published solutions whose latency was measured.
     pub latency_samples: u64,
     /// Largest latency from the reception of an IMU message to the socket write of the
@@ -380,11 +397,169 @@ impl Handle {
     }
 }
 
-/// Run the daemon until `handle.stop()` (or a fatal error). The caller provides the runtime.
+/// The camera task is restarted after a panic at most this many times, then the daemon stops:
+/// the camera is an optional input with its own reconnection, so a failure there should not
+/// cost the navigation state (a restarted daemon needs a GNSS fix to start its INS again), but
+/// a camera that keeps failing is a fault, not a transient.
+pub const MAX_CAMERA_RESTARTS: u64 = 3;
+
+/// Time left to the writer to send the STATUSTEXT announcing a fatal error.
+const LAST_WORDS: Duration = Duration::from_millis(300);
+
+/// A supervised worker: its name in messages, and whether it may end on its own (the camera
+/// with no source or at the end of its directory, TIMESYNC requests at rate 0).
+#[derive(Debug, Clone, Copy)]
+struct Worker {
+    name: &'static str,
+    may_end: bool,
+}
+
+const READER: Worker = Worker {
+    name: "link reader",
+    may_end: false,
+};
+const WRITER: Worker = Worker {
+    name: "link writer",
+    may_end: false,
+};
+const TIMESYNC: Worker = Worker {
+    name: "TIMESYNC requests",
+    may_end: true,
+};
+const INTERVALS: Worker = Worker {
+    name: "interval requests",
+    may_end: false,
+};
+const MONITOR: Worker = Worker {
+    name: "monitor",
+    may_end: false,
+};
+const CAMERA: Worker = Worker {
+    name: "camera",
+    may_end: true,
+};
+const NAV: &str = "navigation thread";
+
+/// Test hook (docs/DAEMON.md "Worker failures"): `IANAV_FAULT=WORKER[:stop]` makes a worker
+/// (`reader`, `writer`, `timesync`, `intervals`, `monitor`, `camera`, `nav`) panic, or with
+/// `:stop` end, [`Fault::AFTER`] after the start. Only builds with debug assertions read it
+/// (the `ci` test profile): a release build ignores the variable.
+#[derive(Debug, Clone, Default)]
+pub(crate) struct Fault {
+    worker: Option<String>,
+    stop: bool,
+}
+
+/// What an injected fault does.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub(crate) enum FaultKind {
+    /// Panic.
+    Panic,
+    /// Return as if done.
+    Stop,
+}
+
+impl Fault {
+    /// Delay before an injected fault strikes (the daemon is running by then).
+    pub(crate) const AFTER: Duration = Duration::from_secs(1);
+
+    fn from_env() -> Self {
+        if !cfg!(debug_assertions) {
+            return Self::default();
+        }
+        let Ok(v) = std::env::var("IANAV_FAULT") else {
+            return Self::default();
+        };
+        let (worker, stop) = match v.split_once(':') {
+            Some((w, "stop")) => (w.to_owned(), true),
+            _ => (v, false),
+        };
+        tracing::warn!(worker, stop, "IANAV_FAULT: test fault armed");
+        Self {
+            worker: Some(worker),
+            stop,
+        }
+    }
+
+    /// The fault armed for `worker`, if any.
+    pub(crate) fn on(&self, worker: &str) -> Option<FaultKind> {
+        (self.worker.as_deref() == Some(worker)).then_some(if self.stop {
+            FaultKind::Stop
+        } else {
+            FaultKind::Panic
+        })
+    }
+
+    /// Run `fut` as worker `id`, with its fault if one is armed.
+    fn wrap(
+        &self,
+        id: &str,
+        fut: impl std::future::Future<Output = ()> + Send + 'static,
+    ) -> impl std::future::Future<Output = ()> + Send + 'static {
+        let fault = self.on(id);
+        let id = id.to_owned();
+        async move {
+            let Some(kind) = fault else {
+                return fut.await;
+            };
+            tokio::select! {
+                () = fut => {}
+                () = tokio::time::sleep(Fault::AFTER) => {
+                    if kind == FaultKind::Panic {
+                        panic!("IANAV_FAULT: injected panic in {id}");
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// The message of a panic payload.
+fn panic_message(p: &(dyn std::any::Any + Send)) -> String {
+    p.downcast_ref::<&str>()
+        .map(|s| (*s).to_owned())
+        .or_else(|| p.downcast_ref::<String>().cloned())
+        .unwrap_or_else(|| "(no message)".to_owned())
+}
+
+/// The worker tasks and their names.
+struct Supervisor {
+    tasks: tokio::task::JoinSet<()>,
+    workers: std::collections::HashMap<tokio::task::Id, Worker>,
+    fault: Fault,
+}
+
+/// A worker's future.
+type WorkerFuture = std::pin::Pin<Box<dyn std::future::Future<Output = ()> + Send>>;
+
+impl Supervisor {
+    fn spawn(&mut self, id: &str, w: Worker, fut: WorkerFuture) {
+        let h = self.tasks.spawn(self.fault.wrap(id, fut));
+        self.workers.insert(h.id(), w);
+    }
+}
+
+/// How supervision ended.
+enum Ending {
+    /// `Handle::stop` (SIGINT / SIGTERM).
+    Stopped,
+    /// The navigation thread ended (its panic, if any, is taken from its join).
+    NavEnded,
+    /// A worker failed.
+    Failed(DaemonError),
+}
+
+/// Run the daemon until `handle.stop()` or a fatal error. The caller provides the runtime.
+///
+/// Every worker is supervised: one that panics, or ends while it should run, stops the daemon
+/// with [`DaemonError::WorkerPanicked`] / [`DaemonError::WorkerStopped`] after a STATUSTEXT
+/// saying so (so `ianav run` exits non-zero and systemd restarts it), except the camera task,
+/// restarted up to [`MAX_CAMERA_RESTARTS`] times. Never alive with a dead worker.
 pub async fn run(
     cfg: DaemonConfig,
     handle_tx: Option<tokio::sync::oneshot::Sender<Handle>>,
 ) -> Result<(), DaemonError> {
+    let fault = Fault::from_env();
     let shared = Arc::new(Shared::default());
     let (stop_tx, stop_rx) = watch::channel(false);
     let clock = Clock::new();
@@ -404,6 +579,7 @@ pub async fn run(
     };
     let cfg = Arc::new(cfg);
     let publisher = publish::Publisher::new(cfg.clone(), clock, outbox.clone(), shared.clone());
+    let (nav_exit_tx, nav_exit_rx) = tokio::sync::oneshot::channel();
     let nav_join = nav_thread::spawn(
         nav,
         year,
@@ -412,6 +588,7 @@ pub async fn run(
         latest_tx,
         publisher,
         shared.clone(),
+        nav_thread::Exit::new(nav_exit_tx, fault.on("nav")),
     )
     .map_err(|e| DaemonError::Thread(e.to_string()))?;
     if let Some(h) = handle_tx {
@@ -420,71 +597,185 @@ pub async fn run(
             stop: stop_tx.clone(),
         });
     }
-    let mut tasks = tokio::task::JoinSet::new();
+    let mut sup = Supervisor {
+        tasks: tokio::task::JoinSet::new(),
+        workers: std::collections::HashMap::new(),
+        fault: fault.clone(),
+    };
     let (conn_tx, conn_rx) = watch::channel(None);
     // The reader and the camera own the only senders: when both have stopped, the navigation
     // thread sees the channel close and ends.
     let cam_wake = event_tx.clone();
-    tasks.spawn(link::writer(
-        cfg.clone(),
-        out_rx,
-        conn_rx,
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    tasks.spawn(link::reader(
-        cfg.clone(),
-        clock,
-        conn_tx,
-        event_tx,
-        outbox.clone(),
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    tasks.spawn(link::timesync_requests(
-        cfg.clone(),
-        clock,
-        outbox.clone(),
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    tasks.spawn(link::interval_requests(
-        cfg.clone(),
-        outbox.clone(),
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    tasks.spawn(monitor(
-        cfg.clone(),
-        clock,
-        latest_rx,
-        outbox.clone(),
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    tasks.spawn(camera::run(
-        cfg.clone(),
-        clock,
-        frames,
-        cam_wake,
-        shared.clone(),
-        stop_rx.clone(),
-    ));
-    // Wait for the stop signal; tasks end by themselves on it.
+    sup.spawn(
+        "writer",
+        WRITER,
+        Box::pin(link::writer(
+            cfg.clone(),
+            out_rx,
+            conn_rx,
+            shared.clone(),
+            stop_rx.clone(),
+        )),
+    );
+    sup.spawn(
+        "reader",
+        READER,
+        Box::pin(link::reader(
+            cfg.clone(),
+            clock,
+            conn_tx,
+            event_tx,
+            outbox.clone(),
+            shared.clone(),
+            stop_rx.clone(),
+        )),
+    );
+    sup.spawn(
+        "timesync",
+        TIMESYNC,
+        Box::pin(link::timesync_requests(
+            cfg.clone(),
+            clock,
+            outbox.clone(),
+            shared.clone(),
+            stop_rx.clone(),
+        )),
+    );
+    sup.spawn(
+        "intervals",
+        INTERVALS,
+        Box::pin(link::interval_requests(
+            cfg.clone(),
+            outbox.clone(),
+            shared.clone(),
+            stop_rx.clone(),
+        )),
+    );
+    sup.spawn(
+        "monitor",
+        MONITOR,
+        Box::pin(monitor(
+            cfg.clone(),
+            clock,
+            latest_rx,
+            outbox.clone(),
+            shared.clone(),
+            stop_rx.clone(),
+        )),
+    );
+    let camera = {
+        let (cfg, shared, stop) = (cfg.clone(), shared.clone(), stop_rx.clone());
+        move || -> WorkerFuture {
+            Box::pin(camera::run(
+                cfg.clone(),
+                clock,
+                frames.clone(),
+                cam_wake.clone(),
+                shared.clone(),
+                stop.clone(),
+            ))
+        }
+    };
+    sup.spawn("camera", CAMERA, camera());
+    // Supervise until the stop signal or a failure.
     let mut stop = stop_rx.clone();
-    let _ = stop.wait_for(|s| *s).await;
+    let mut nav_exit = nav_exit_rx;
+    let ending = loop {
+        tokio::select! {
+            _ = stop.wait_for(|s| *s) => break Ending::Stopped,
+            _ = &mut nav_exit => break Ending::NavEnded,
+            Some(joined) = sup.tasks.join_next_with_id() => {
+                let (id, panic) = match joined {
+                    Ok((id, ())) => (id, None),
+                    Err(e) => {
+                        let id = e.id();
+                        let msg = match e.try_into_panic() {
+                            Ok(p) => panic_message(p.as_ref()),
+                            Err(e) => e.to_string(),
+                        };
+                        (id, Some(msg))
+                    }
+                };
+                let Some(w) = sup.workers.remove(&id) else { continue };
+                match panic {
+                    // Workers end by themselves on the stop signal.
+                    None if w.may_end || *stop_rx.borrow() => {}
+                    None => break Ending::Failed(DaemonError::WorkerStopped { worker: w.name }),
+                    Some(msg) if w.name == CAMERA.name
+                        && shared.counters().worker_restarts < MAX_CAMERA_RESTARTS =>
+                    {
+                        let n = shared.count(|c| {
+                            c.worker_restarts += 1;
+                            c.worker_restarts
+                        });
+                        tracing::error!("camera task panicked ({msg}): restarting");
+                        outbox.status(
+                            apm::MavSeverity::MAV_SEVERITY_WARNING,
+                            &format!("ianav: camera failed, restart {n}/{MAX_CAMERA_RESTARTS}"),
+                        );
+                        sup.spawn("camera", CAMERA, camera());
+                    }
+                    Some(message) => {
+                        break Ending::Failed(DaemonError::WorkerPanicked {
+                            worker: w.name,
+                            message,
+                        });
+                    }
+                }
+            }
+        }
+    };
+    // The reader stops when the navigation thread is gone, maybe seen first: name the thread
+    // then (its end is signalled before its event receiver is dropped).
+    let nav_ended = matches!(ending, Ending::NavEnded) || nav_exit.try_recv().is_ok();
+    let failed = match &ending {
+        Ending::Stopped => None,
+        Ending::NavEnded => Some(NAV),
+        _ if nav_ended => Some(NAV),
+        Ending::Failed(
+            DaemonError::WorkerPanicked { worker, .. } | DaemonError::WorkerStopped { worker },
+        ) => Some(*worker),
+        Ending::Failed(_) => Some("worker"),
+    };
+    if let Some(what) = failed {
+        // Not logged here: `ianav run` prints the error once when the daemon returns it.
+        shared.count(|c| c.statustexts += 1);
+        outbox.send(apm::MavMessage::STATUSTEXT(mavlink_out::statustext(
+            apm::MavSeverity::MAV_SEVERITY_CRITICAL,
+            &format!("ianav: {what} failed, exiting"),
+        )));
+        tokio::time::sleep(LAST_WORDS).await;
+    }
+    let _ = stop_tx.send(true);
     let _ = tokio::time::timeout(Duration::from_secs(2), async {
-        while tasks.join_next().await.is_some() {}
+        while sup.tasks.join_next().await.is_some() {}
     })
     .await;
-    tasks.abort_all();
-    drop(outbox);
-    // The reader owned the event sender: the navigation thread sees the channel close.
-    tokio::task::spawn_blocking(move || nav_join.join())
+    sup.tasks.abort_all();
+    // Drop every event sender (the camera's is in its restart closure): the navigation thread
+    // sees the channel close and ends.
+    drop((outbox, camera, sup));
+    if !nav_ended
+        && tokio::time::timeout(Duration::from_secs(5), &mut nav_exit)
+            .await
+            .is_err()
+    {
+        return Err(DaemonError::Thread("did not stop within 5 s".to_owned()));
+    }
+    let nav_result = tokio::task::spawn_blocking(move || nav_join.join())
         .await
-        .map_err(|e| DaemonError::Thread(e.to_string()))?
-        .map_err(|_| DaemonError::Thread("panicked".to_owned()))?;
-    Ok(())
+        .map_err(|e| DaemonError::Thread(e.to_string()))?;
+    // The navigation thread's end first: the reader then stops too, for that reason.
+    match (nav_result, ending) {
+        (Err(p), _) => Err(DaemonError::WorkerPanicked {
+            worker: NAV,
+            message: panic_message(p.as_ref()),
+        }),
+        (Ok(()), Ending::NavEnded) => Err(DaemonError::WorkerStopped { worker: NAV }),
+        (Ok(()), _) if nav_ended => Err(DaemonError::WorkerStopped { worker: NAV }),
+        (Ok(()), Ending::Failed(e)) => Err(e),
+        (Ok(()), Ending::Stopped) => Ok(()),
+    }
 }
 
 /// The output mode in force (auto resolved from the autopilot kind; `None` while unknown).
@@ -526,13 +817,18 @@ async fn monitor(
     mut stop: watch::Receiver<bool>,
 ) {
     use apm::MavSeverity as S;
-    // systemd: STATUS while waiting; READY=1 when the estimator first runs (so the start
-    // timeout, not the watchdog, covers the wait for the first fix); WATCHDOG=1 each second
-    // only while it runs.
-    let notifier = notify::Notifier::from_env();
-    if let Err(e) = notifier.notify("STATUS=waiting for the autopilot and a GNSS fix") {
-        tracing::warn!("sd_notify: {e}");
-    }
+    // systemd (sd_notify(3); no-ops without $NOTIFY_SOCKET): STATUS while waiting; READY=1
+    // when the estimator first runs, so the start timeout, not the watchdog, covers the wait
+    // for the first fix; then WATCHDOG=1 each second only while solutions come from IMU
+    // messages received less than MAX_SOLUTION_AGE_US ago (`running` below: the INS yields a
+    // solution only on an IMU sample), i.e. only while the navigation processes IMU samples.
+    use sd_notify::NotifyState as N;
+    let notify = |states: &[N]| {
+        if let Err(e) = sd_notify::notify(states) {
+            tracing::warn!("sd_notify: {e}");
+        }
+    };
+    notify(&[N::Status("waiting for the autopilot and a GNSS fix")]);
     let mut ready_sent = false;
     let mut flags = Flags::default();
     let mut link_lost_at: Option<u64> = None;
@@ -633,16 +929,13 @@ async fn monitor(
                 (true, true) => Health::Critical,
             };
             outbox.send(apm::MavMessage::HEARTBEAT(mavlink_out::heartbeat(health)));
-            // The watchdog is fed only while the estimator runs.
-            let msg = match (running, ready_sent) {
-                (true, false) => Some("READY=1\nSTATUS=estimator running\nWATCHDOG=1"),
-                (true, true) => Some("WATCHDOG=1"),
-                (false, _) => None,
-            };
-            if let Some(m) = msg {
-                ready_sent = true;
-                if let Err(e) = notifier.notify(m) {
-                    tracing::warn!("sd_notify: {e}");
+            // The watchdog is fed only while the estimator runs on fresh IMU samples.
+            if running {
+                if ready_sent {
+                    notify(&[N::Watchdog]);
+                } else {
+                    ready_sent = true;
+                    notify(&[N::Ready, N::Status("estimator running"), N::Watchdog]);
                 }
             }
         }
@@ -684,6 +977,7 @@ pub fn log_counters(c: &Counters) {
         frames = c.frames_received,
         frames_dropped = c.frames_dropped,
         camera_err = c.camera_errors,
+        restarts = c.worker_restarts,
         latency_samples = c.latency_samples,
         latency_max_us = c.latency_max_us,
         "counters"

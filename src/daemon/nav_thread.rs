@@ -78,7 +78,37 @@ impl FrameQueue {
     }
 }
 
+/// The thread's end, reported to the supervisor (`daemon::run`) when it is dropped: on return
+/// and while unwinding from a panic alike. Carries the test fault armed for the thread.
+#[derive(Debug)]
+pub struct Exit {
+    notice: Option<tokio::sync::oneshot::Sender<()>>,
+    fault: Option<super::FaultKind>,
+}
+
+impl Exit {
+    /// Report the end on `notice`; `fault`: the test fault armed for the thread.
+    pub(crate) fn new(
+        notice: tokio::sync::oneshot::Sender<()>,
+        fault: Option<super::FaultKind>,
+    ) -> Self {
+        Self {
+            notice: Some(notice),
+            fault,
+        }
+    }
+}
+
+impl Drop for Exit {
+    fn drop(&mut self) {
+        if let Some(n) = self.notice.take() {
+            let _ = n.send(());
+        }
+    }
+}
+
 /// Start the thread. It ends when the event channel closes.
+#[allow(clippy::too_many_arguments)] // the thread's inputs and outputs, each used once
 pub fn spawn(
     mut nav: Navigator,
     mag_decimal_year: f64,
@@ -87,16 +117,28 @@ pub fn spawn(
     latest: watch::Sender<Option<Latest>>,
     mut publisher: super::publish::Publisher,
     shared: Arc<Shared>,
+    exit: Exit,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
         .name("ianav-nav".to_owned())
         .spawn(move || {
+            let started = Instant::now();
+            let fault = exit.fault;
+            let _exit = exit;
             let mut since_sync = 0_u32;
             let mut noisy_reported = 0_u64;
             let mut last: Option<crate::nav::NavSolution> = None;
             // (first, newest) fix time of the current run of fixes while GNSS-denied.
             let mut back: Option<(u64, u64)> = None;
             while let Some(input) = rx.blocking_recv() {
+                if let Some(kind) = fault
+                    && started.elapsed() >= super::Fault::AFTER
+                {
+                    match kind {
+                        super::FaultKind::Panic => panic!("IANAV_FAULT: injected panic in nav"),
+                        super::FaultKind::Stop => return,
+                    }
+                }
                 for f in frames.drain() {
                     nav.push(&SensorEvent::Frame(f));
                 }
