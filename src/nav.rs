@@ -40,7 +40,8 @@ pub struct NavigatorStats {
     pub frames: u64,
     /// (Re)initialisations.
     pub initialisations: u64,
-    /// Times the IMU was found noisier than configured (see [`Navigator::imu_noise`]).
+    /// Times the IMU was found noisier than configured, or [`IMU_NOISE_ESCALATION`] times
+    /// noisier than at the last report (see [`Navigator::imu_noise`]).
     pub imu_noisier_than_configured: u64,
 }
 
@@ -53,7 +54,12 @@ pub struct Navigator {
     reset_counter: u8,
     imu_noise: ImuNoiseMonitor,
     imu_noisy: bool,
+    /// The worst ratio when the IMU was last reported noisier than configured.
+    imu_noisy_ratio: f64,
 }
+
+/// A noisy IMU is reported again when its worst ratio grows by this factor.
+pub const IMU_NOISE_ESCALATION: f64 = 2.0;
 
 impl Navigator {
     /// A navigator waiting for [`Navigator::initialise`]. Fails on an invalid configuration.
@@ -66,6 +72,7 @@ impl Navigator {
             reset_counter: 0,
             imu_noise: ImuNoiseMonitor::default(),
             imu_noisy: false,
+            imu_noisy_ratio: 0.0,
         })
     }
 
@@ -125,10 +132,15 @@ impl Navigator {
             return;
         }
         let Some(n) = self.imu_noise() else { return };
-        if !self.imu_noisy && n.exceeds(NOISY_RATIO) {
+        let worst = n.gyro_ratio.max(n.accel_ratio);
+        // Reported again when it doubles: the first report often comes on the ground, before
+        // the motor and the airflow add their vibration (PX4 SIH: ×80 disarmed, ×4000 flying).
+        let escalated = self.imu_noisy && worst > IMU_NOISE_ESCALATION * self.imu_noisy_ratio;
+        if (!self.imu_noisy && worst > NOISY_RATIO) || escalated {
             self.imu_noisy = true;
+            self.imu_noisy_ratio = worst;
             self.stats.imu_noisier_than_configured += 1;
-        } else if self.imu_noisy && !n.exceeds(QUIET_RATIO) {
+        } else if self.imu_noisy && worst < QUIET_RATIO {
             self.imu_noisy = false;
         }
     }
@@ -218,5 +230,46 @@ mod tests {
         assert!(nav.initialise(&bad).is_err());
         assert!(nav.is_initialised());
         assert_eq!(nav.stats().initialisations, 1);
+    }
+
+    /// An IMU first a little, then much noisier than configured (ground, then flight): one
+    /// report, then one more when the ratio has doubled; none while it stays there.
+    #[test]
+    fn a_noisy_imu_is_reported_and_reported_again_when_it_gets_worse() {
+        let cfg = InsConfig::default();
+        let mut nav = Navigator::new(&cfg).unwrap();
+        // Deterministic ±σ noise (white enough for second differences: a pseudo-random sign).
+        let mut state = 0x2545_f491_4f6c_dd1d_u64;
+        let mut sign = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            if state & 1 == 0 { 1.0 } else { -1.0 }
+        };
+        let r_gyro = cfg.attitude.r_gyro_rad2ps2;
+        let mut push = |nav: &mut Navigator, k: u64, sigma: f64| {
+            let mut v = || Vector3::new(sign(), sign(), sign()) * sigma;
+            let imu = ImuSample {
+                t_us: k * 10_000,
+                gyro_rps: v(),
+                accel_mps2: Vector3::new(0.0, 0.0, -9.81),
+            };
+            nav.push(&SensorEvent::Imu(imu));
+        };
+        // 40 s at ×10 of the configured variance, 40 s at ×1000.
+        for k in 0..4_000 {
+            push(&mut nav, k, (10.0 * r_gyro).sqrt());
+        }
+        assert!(nav.imu_noisier_than_configured());
+        assert_eq!(nav.stats().imu_noisier_than_configured, 1);
+        let n = nav.imu_noise().unwrap();
+        assert!((n.gyro_ratio / 10.0 - 1.0).abs() < 0.1, "{n:?}");
+        for k in 4_000..8_000 {
+            push(&mut nav, k, (1000.0 * r_gyro).sqrt());
+        }
+        assert_eq!(nav.stats().imu_noisier_than_configured, 2);
+        assert!((nav.imu_noise().unwrap().gyro_ratio / 1000.0 - 1.0).abs() < 0.1);
+        // The events count as received before the initialisation, as any other.
+        assert_eq!(nav.stats().events_before_init, 8_000);
     }
 }
