@@ -1,0 +1,276 @@
+//! `ianav-fuzz`: the fuzzer's command line (docs/RELIABILITY.md). Build it in the `ci`
+//! profile so that overflow checks and debug assertions are part of the oracle:
+//! `cargo run -p ianav-fuzz --profile ci -- run --seed 1 --inputs 10000000`.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+use std::time::Instant;
+
+use anyhow::Context;
+use clap::{Parser, Subcommand};
+
+use ianav_fuzz::input::{Input, Starts, read_input};
+use ianav_fuzz::pipeline::Stats;
+use ianav_fuzz::{FNV_BASIS, Outcome, extremes, fnv1a, minimise, mutate, run_catching};
+
+#[derive(Parser)]
+#[command(
+    about = "Fuzz ianav's MAVLink input path: bytes → frames → messages → events → navigation"
+)]
+struct Cli {
+    #[command(subcommand)]
+    cmd: Cmd,
+}
+
+#[derive(Subcommand)]
+enum Cmd {
+    /// Generate and run inputs `0..inputs` of `seed` (stops early after `seconds`).
+    Run {
+        /// Seed of the run.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Inputs to run.
+        #[arg(long, default_value_t = 1_000_000)]
+        inputs: u64,
+        /// Stop after this many seconds (0: no limit); the inputs run are still a prefix of
+        /// the seed's sequence.
+        #[arg(long, default_value_t = 0.0)]
+        seconds: f64,
+        /// Go on after a finding (up to 20 distinct ones).
+        #[arg(long)]
+        keep_going: bool,
+        /// Directory for reproducers of findings.
+        #[arg(long, default_value = "target/fuzz-findings")]
+        out: PathBuf,
+        /// Progress line every this many seconds (0: none).
+        #[arg(long, default_value_t = 60.0)]
+        progress: f64,
+    },
+    /// Regenerate input `index` of `seed`, run it and optionally write it.
+    Replay {
+        /// Seed.
+        #[arg(long)]
+        seed: u64,
+        /// Input index.
+        #[arg(long)]
+        index: u64,
+        /// Write the input (byte form) here.
+        #[arg(long)]
+        write: Option<PathBuf>,
+        /// Minimise a failing input before writing it.
+        #[arg(long)]
+        minimise: bool,
+    },
+    /// Run inputs saved in the byte form.
+    Exec {
+        /// Files.
+        files: Vec<PathBuf>,
+    },
+    /// Every accepted message with every field at its extremes (the property sweep).
+    Extremes,
+    /// Write generated inputs in the byte form (seeds for a byte-level fuzzer).
+    Corpus {
+        /// Seed.
+        #[arg(long, default_value_t = 1)]
+        seed: u64,
+        /// Number of inputs.
+        #[arg(long, default_value_t = 200)]
+        count: u64,
+        /// Directory.
+        #[arg(long)]
+        out: PathBuf,
+    },
+}
+
+fn print_stats(s: &Stats) {
+    let f = s.fields();
+    let line: Vec<String> = f.iter().map(|(k, v)| format!("{k}={v}")).collect();
+    println!("totals: {}", line.join(" "));
+    let never: Vec<&str> = f.iter().filter(|(_, v)| *v == 0).map(|(k, _)| *k).collect();
+    println!(
+        "never reached: {}",
+        if never.is_empty() {
+            "-".to_owned()
+        } else {
+            never.join(" ")
+        }
+    );
+}
+
+fn save(out: &std::path::Path, name: &str, input: &Input) -> anyhow::Result<PathBuf> {
+    std::fs::create_dir_all(out).with_context(|| format!("creating {}", out.display()))?;
+    let p = out.join(name);
+    std::fs::write(&p, input.to_bytes()).with_context(|| format!("writing {}", p.display()))?;
+    Ok(p)
+}
+
+#[allow(clippy::too_many_arguments)]
+fn run(
+    starts: &Starts,
+    seed: u64,
+    inputs: u64,
+    seconds: f64,
+    keep_going: bool,
+    out: &std::path::Path,
+    progress: f64,
+) -> anyhow::Result<bool> {
+    let t0 = Instant::now();
+    let mut totals = Stats::default();
+    let mut digest = FNV_BASIS;
+    let mut findings: Vec<String> = Vec::new();
+    let mut last_progress = 0.0;
+    let mut done = 0;
+    for index in 0..inputs {
+        if index % 1024 == 0 {
+            let el = t0.elapsed().as_secs_f64();
+            if seconds > 0.0 && el >= seconds {
+                break;
+            }
+            if progress > 0.0 && el - last_progress >= progress {
+                last_progress = el;
+                println!(
+                    "progress: {index} inputs, {el:.0} s, {:.0}/s, {} findings",
+                    index as f64 / el,
+                    findings.len()
+                );
+            }
+        }
+        let input = mutate::generate(starts, seed, index);
+        digest = fnv1a(digest, &input.to_bytes());
+        let o = run_catching(starts, &input);
+        done = index + 1;
+        match &o {
+            Outcome::Pass(s) => {
+                totals.add(s);
+                digest = fnv1a(digest, &[s.frames as u8, s.events as u8, s.solutions as u8]);
+            }
+            _ => {
+                let sig = o.signature();
+                if !findings.contains(&sig) {
+                    println!("FINDING at seed {seed} index {index}: {o:?}");
+                    let min = minimise(starts, &input, 20_000);
+                    let p = save(out, &format!("seed{seed}-index{index}.bin"), &min)?;
+                    println!(
+                        "  minimised to {} datagrams, {} bytes: {} (replay: ianav-fuzz exec {})",
+                        min.datagrams.len(),
+                        min.datagrams.iter().map(|d| d.bytes.len()).sum::<usize>(),
+                        p.display(),
+                        p.display()
+                    );
+                    findings.push(sig);
+                }
+                if !keep_going || findings.len() >= 20 {
+                    break;
+                }
+            }
+        }
+    }
+    let el = t0.elapsed().as_secs_f64();
+    println!(
+        "seed {seed}: {done} inputs in {el:.1} s ({:.0} inputs/s), {} findings, digest {digest:016x}",
+        done as f64 / el.max(1e-9),
+        findings.len()
+    );
+    print_stats(&totals);
+    Ok(findings.is_empty())
+}
+
+fn main() -> anyhow::Result<ExitCode> {
+    let cli = Cli::parse();
+    let t0 = Instant::now();
+    let starts = Starts::build()?;
+    eprintln!(
+        "{} warmed-up daemons in {:.2} s",
+        starts.0.len(),
+        t0.elapsed().as_secs_f64()
+    );
+    let ok = match cli.cmd {
+        Cmd::Run {
+            seed,
+            inputs,
+            seconds,
+            keep_going,
+            out,
+            progress,
+        } => run(&starts, seed, inputs, seconds, keep_going, &out, progress)?,
+        Cmd::Replay {
+            seed,
+            index,
+            write,
+            minimise: min,
+        } => {
+            let mut input = mutate::generate(&starts, seed, index);
+            let o = run_catching(&starts, &input);
+            println!("{o:?}");
+            if min && o.failed() {
+                input = minimise(&starts, &input, 50_000);
+                println!("minimised: {input:?}");
+            }
+            if let Some(p) = write {
+                std::fs::write(&p, input.to_bytes())
+                    .with_context(|| format!("writing {}", p.display()))?;
+            }
+            !o.failed()
+        }
+        Cmd::Exec { files } => {
+            let mut ok = true;
+            for f in files {
+                let o = run_catching(&starts, &read_input(&f)?);
+                println!("{}: {o:?}", f.display());
+                ok &= !o.failed();
+            }
+            ok
+        }
+        Cmd::Extremes => {
+            let t = Instant::now();
+            match extremes::sweep(&starts, |i| match run_catching(&starts, i) {
+                Outcome::Pass(s) => Ok((s.solutions, s.parse_errors)),
+                o => Err(format!("{o:?}")),
+            }) {
+                Ok(report) => {
+                    let cases: u64 = report.iter().map(|r| r.cases).sum();
+                    for r in &report {
+                        println!(
+                            "{:<20} {:>6} cases, {:>5} refused by the parser, {:>5} without a solution after",
+                            r.name, r.cases, r.parse_errors, r.stalled
+                        );
+                        if !r.stalled_at.is_empty() {
+                            println!("    stalled after bytes: {}", r.stalled_at.join(", "));
+                        }
+                    }
+                    println!(
+                        "{cases} cases in {:.1} s, no finding",
+                        t.elapsed().as_secs_f64()
+                    );
+                    true
+                }
+                Err(f) => {
+                    println!("FINDING {}: {}", f.case, f.message);
+                    let p = save(
+                        std::path::Path::new("target/fuzz-findings"),
+                        "extremes.bin",
+                        &f.input,
+                    )?;
+                    println!("  input: {}", p.display());
+                    false
+                }
+            }
+        }
+        Cmd::Corpus { seed, count, out } => {
+            for index in 0..count {
+                save(
+                    &out,
+                    &format!("seed{seed}-{index:06}.bin"),
+                    &mutate::generate(&starts, seed, index),
+                )?;
+            }
+            println!("{count} inputs written to {}", out.display());
+            true
+        }
+    };
+    Ok(if ok {
+        ExitCode::SUCCESS
+    } else {
+        ExitCode::FAILURE
+    })
+}
