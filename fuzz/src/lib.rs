@@ -30,7 +30,7 @@ use pipeline::Stats;
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub enum Outcome {
     /// All properties held.
-    Pass(Stats),
+    Pass(Box<Stats>),
     /// The oracle found a broken property.
     Violation(String),
     /// A panic: its message and location.
@@ -43,19 +43,33 @@ impl Outcome {
         !matches!(self, Outcome::Pass(_))
     }
 
-    /// What identifies the finding (the panic location, or the violation's first words), to
-    /// tell findings apart and to keep a minimised input failing the same way.
+    /// What identifies the finding: the violated property (its text before the first ':'),
+    /// or the panic's location. Used to tell findings apart, to keep a minimised input
+    /// failing the same way, and to match the known findings.
     pub fn signature(&self) -> String {
         match self {
             Outcome::Pass(_) => String::new(),
             Outcome::Violation(m) => {
-                format!("violation: {}", m.chars().take(40).collect::<String>())
+                format!("violation: {}", m.split(':').next().unwrap_or(m))
             }
             Outcome::Panic(m) => {
                 format!("panic at {}", m.rsplit(" at ").next().unwrap_or(m))
             }
         }
     }
+}
+
+/// Findings that are reported and tracked but do not fail a run (`fuzz/known-findings.txt`):
+/// (signature, reason).
+pub fn known_findings() -> Vec<(String, String)> {
+    include_str!("../known-findings.txt")
+        .lines()
+        .filter(|l| !l.trim().is_empty() && !l.starts_with('#'))
+        .map(|l| match l.split_once('\t') {
+            Some((sig, why)) => (sig.trim().to_owned(), why.trim().to_owned()),
+            None => (l.trim().to_owned(), String::new()),
+        })
+        .collect()
 }
 
 thread_local! {
@@ -113,7 +127,7 @@ pub fn catching<T>(f: impl FnOnce() -> T) -> Result<T, String> {
 /// Run `input`, catching a panic.
 pub fn run_catching(starts: &Starts, input: &Input) -> Outcome {
     match catching(|| starts.run(input)) {
-        Ok(Ok(stats)) => Outcome::Pass(stats),
+        Ok(Ok(stats)) => Outcome::Pass(Box::new(stats)),
         Ok(Err(v)) => Outcome::Violation(v.0),
         Err(msg) => Outcome::Panic(msg),
     }

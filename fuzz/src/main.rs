@@ -8,10 +8,14 @@ use std::time::Instant;
 
 use anyhow::Context;
 use clap::{Parser, Subcommand};
+use mavlink::Message;
+use mavlink::dialects::ardupilotmega as apm;
 
 use ianav_fuzz::input::{Input, Starts, read_input};
 use ianav_fuzz::pipeline::Stats;
-use ianav_fuzz::{FNV_BASIS, Outcome, extremes, fnv1a, minimise, mutate, run_catching};
+use ianav_fuzz::{
+    FNV_BASIS, Outcome, extremes, fnv1a, known_findings, minimise, mutate, run_catching,
+};
 
 #[derive(Parser)]
 #[command(
@@ -36,9 +40,13 @@ enum Cmd {
         /// the seed's sequence.
         #[arg(long, default_value_t = 0.0)]
         seconds: f64,
-        /// Go on after a finding (up to 20 distinct ones).
+        /// Go on after a new finding (up to 20 distinct ones). Known findings
+        /// (`fuzz/known-findings.txt`) never stop a run.
         #[arg(long)]
         keep_going: bool,
+        /// Fail on known findings too.
+        #[arg(long)]
+        strict: bool,
         /// Directory for reproducers of findings.
         #[arg(long, default_value = "target/fuzz-findings")]
         out: PathBuf,
@@ -65,6 +73,11 @@ enum Cmd {
     Exec {
         /// Files.
         files: Vec<PathBuf>,
+    },
+    /// Print what a saved input carries: per datagram its time and the frames in it.
+    Show {
+        /// File (byte form).
+        file: PathBuf,
     },
     /// Every accepted message with every field at its extremes (the property sweep).
     Extremes,
@@ -111,13 +124,17 @@ fn run(
     inputs: u64,
     seconds: f64,
     keep_going: bool,
+    strict: bool,
     out: &std::path::Path,
     progress: f64,
 ) -> anyhow::Result<bool> {
+    let known = known_findings();
+    let is_known = |sig: &str| !strict && known.iter().any(|(k, _)| k == sig);
     let t0 = Instant::now();
     let mut totals = Stats::default();
     let mut digest = FNV_BASIS;
-    let mut findings: Vec<String> = Vec::new();
+    // Distinct findings and how many inputs showed each.
+    let mut findings: Vec<(String, u64)> = Vec::new();
     let mut last_progress = 0.0;
     let mut done = 0;
     for index in 0..inputs {
@@ -146,8 +163,15 @@ fn run(
             }
             _ => {
                 let sig = o.signature();
-                if !findings.contains(&sig) {
-                    println!("FINDING at seed {seed} index {index}: {o:?}");
+                if let Some(f) = findings.iter_mut().find(|(s, _)| *s == sig) {
+                    f.1 += 1;
+                } else {
+                    let tag = if is_known(&sig) {
+                        "known finding"
+                    } else {
+                        "NEW FINDING"
+                    };
+                    println!("{tag} at seed {seed} index {index}: {o:?}");
                     let min = minimise(starts, &input, 20_000);
                     let p = save(out, &format!("seed{seed}-index{index}.bin"), &min)?;
                     println!(
@@ -157,9 +181,10 @@ fn run(
                         p.display(),
                         p.display()
                     );
-                    findings.push(sig);
+                    findings.push((sig, 1));
                 }
-                if !keep_going || findings.len() >= 20 {
+                let new = findings.iter().filter(|(s, _)| !is_known(s)).count();
+                if new > 0 && (!keep_going || new >= 20) {
                     break;
                 }
             }
@@ -171,8 +196,14 @@ fn run(
         done as f64 / el.max(1e-9),
         findings.len()
     );
+    for (sig, n) in &findings {
+        match known.iter().find(|(k, _)| k == sig) {
+            Some((_, why)) if !strict => println!("known finding, {n} inputs: {sig} ({why})"),
+            _ => println!("NEW FINDING, {n} inputs: {sig}"),
+        }
+    }
     print_stats(&totals);
-    Ok(findings.is_empty())
+    Ok(findings.iter().all(|(s, _)| is_known(s)))
 }
 
 fn main() -> anyhow::Result<ExitCode> {
@@ -190,9 +221,12 @@ fn main() -> anyhow::Result<ExitCode> {
             inputs,
             seconds,
             keep_going,
+            strict,
             out,
             progress,
-        } => run(&starts, seed, inputs, seconds, keep_going, &out, progress)?,
+        } => run(
+            &starts, seed, inputs, seconds, keep_going, strict, &out, progress,
+        )?,
         Cmd::Replay {
             seed,
             index,
@@ -220,6 +254,33 @@ fn main() -> anyhow::Result<ExitCode> {
                 ok &= !o.failed();
             }
             ok
+        }
+        Cmd::Show { file } => {
+            let input = read_input(&file)?;
+            let start = starts.of(&input);
+            println!(
+                "start {:?} {:?} at {} µs, link {}",
+                start.variant,
+                start.stage,
+                start.pipeline.now_us(),
+                input.link
+            );
+            for d in &input.datagrams {
+                println!("+{} µs, {} bytes", d.dt_us, d.bytes.len());
+                let mut r = mavlink::MavlinkReader::new(d.bytes.as_slice());
+                while let Ok(raw) = r.read_any_raw_message::<apm::MavMessage>() {
+                    let msg =
+                        apm::MavMessage::parse(raw.version(), raw.message_id(), raw.payload());
+                    println!(
+                        "  {:?} sys {} comp {} seq {}: {msg:?}",
+                        raw.version(),
+                        raw.system_id(),
+                        raw.component_id(),
+                        raw.sequence()
+                    );
+                }
+            }
+            true
         }
         Cmd::Extremes => {
             let t = Instant::now();

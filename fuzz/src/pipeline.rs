@@ -13,7 +13,8 @@
 //! Oracle, checked after every message: no panic (the caller catches it); every event the
 //! decoder emits passes the decoder's own documented limits; the decoder's counters only grow
 //! and count exactly the events emitted; the INS counters account for every event pushed; every
-//! solution is finite with non-negative variances and strictly later than the previous one.
+//! solution is finite, its latitude within ±90°, its variances non-negative, and it is
+//! strictly later than the previous one.
 
 use std::cell::Cell;
 use std::collections::VecDeque;
@@ -222,7 +223,7 @@ impl Stats {
     }
 }
 
-/// A broken property (the oracle's finding; a panic is the other kind).
+/// A broken property (the oracle's finding; a panic is the other kind): `kind: details`.
 #[derive(Debug, Clone, PartialEq, Eq)]
 pub struct Violation(pub String);
 
@@ -233,11 +234,12 @@ impl std::fmt::Display for Violation {
 }
 
 macro_rules! ensure {
-    ($cond:expr, $($arg:tt)*) => {
-        if !$cond {
+    ($cond:expr, $($arg:tt)*) => {{
+        let holds: bool = $cond;
+        if !holds {
             return Err(Violation(format!($($arg)*)));
         }
-    };
+    }};
 }
 
 /// Events pushed to the current INS, per kind, and solutions out of it.
@@ -509,7 +511,7 @@ impl Pipeline {
         let Self { ts, dec, .. } = self;
         let evs = dec.decode(&msg, &mut |t| ts.map(t, rx_us));
         self.check_decoder(&before, &evs, rx_us)
-            .map_err(|v| Violation(format!("{} ({})", v.0, msg.message_name())))?;
+            .map_err(|v| Violation(format!("{} (in {})", v.0, msg.message_name())))?;
         self.stats.events += evs.len() as u64;
         let after = *self.dec.counters();
         let d = |f: fn(&InputCounters) -> u64| f(&after) - f(&before);
@@ -592,7 +594,7 @@ impl Pipeline {
         }
         ensure!(
             self.nav.stats().initialisations == self.inits_ok,
-            "navigator counts {} initialisations, {} succeeded",
+            "navigator initialisations miscounted: {} counted, {} succeeded",
             self.nav.stats().initialisations,
             self.inits_ok
         );
@@ -649,7 +651,7 @@ impl Pipeline {
         }
         if let Some(sol) = sol {
             let SensorEvent::Imu(imu) = ev else {
-                return Err(Violation("a solution from a non-IMU event".into()));
+                return Err(Violation("solution from a non-IMU event: -".into()));
             };
             check_solution(&sol, imu.t_us, self.ledger.last_t_us)?;
             self.ledger.solutions += 1;
@@ -692,7 +694,7 @@ impl Pipeline {
         let (b, a) = (fields(before), fields(after));
         ensure!(
             b.iter().zip(&a).all(|(b, a)| a >= b),
-            "a decoder counter went down: {before:?} → {after:?}"
+            "decoder counter went down: {before:?} → {after:?}"
         );
         let count = |f: fn(&SensorEvent) -> bool| evs.iter().filter(|e| f(e)).count() as u64;
         let emitted = [
@@ -704,7 +706,7 @@ impl Pipeline {
         ];
         ensure!(
             (0..5).all(|i| a[i] - b[i] == emitted[i]),
-            "decoder event counters {:?} → {:?} for events {emitted:?}",
+            "decoder event counters wrong: {:?} → {:?} for events {emitted:?}",
             &b[..5],
             &a[..5]
         );
@@ -712,7 +714,7 @@ impl Pipeline {
         let rejected = after.rejected() - before.rejected();
         ensure!(
             rejected <= 3,
-            "{rejected} rejections counted for one message"
+            "more than 3 rejections for one message: {rejected}"
         );
         // The daemon's clock maps no sample after its reception (autopilot clock: its own time).
         let daemon_clock = self.cfg.mavlink.clock == ClockSource::Daemon;
@@ -720,7 +722,7 @@ impl Pipeline {
             check_event(e)?;
             ensure!(
                 !daemon_clock || e.t_us() <= rx_us,
-                "event at {} µs after its reception at {rx_us} µs: {e:?}",
+                "event dated after its reception: {} µs > {rx_us} µs: {e:?}",
                 e.t_us()
             );
         }
@@ -731,7 +733,7 @@ impl Pipeline {
         let n = self.nav.stats();
         ensure!(
             n.events_before_init == self.pushed_before_init,
-            "navigator counts {} events before init, {} pushed",
+            "navigator events before init miscounted: {} counted, {} pushed",
             n.events_before_init,
             self.pushed_before_init
         );
@@ -749,12 +751,12 @@ impl Pipeline {
         ] {
             ensure!(
                 total(c) == pushed,
-                "INS {name} counters {c:?} for {pushed} events pushed"
+                "INS sample counters miscounted: {name} {c:?} for {pushed} events pushed"
             );
         }
         ensure!(
             s.imu.accepted == l.solutions + s.imu_before_init,
-            "INS accepted {} IMU samples ({} before its start) but gave {} solutions",
+            "INS solutions miscounted: {} IMU samples accepted ({} before its start), {} solutions",
             s.imu.accepted,
             s.imu_before_init,
             l.solutions
@@ -828,7 +830,7 @@ fn check_event(e: &SensorEvent) -> Result<(), Violation> {
         }
         SensorEvent::Frame(_) => {
             return Err(Violation(
-                "a camera frame out of the MAVLink decoder".into(),
+                "camera frame out of the MAVLink decoder: -".into(),
             ));
         }
     }
@@ -840,12 +842,12 @@ fn check_solution(sol: &NavSolution, imu_t_us: u64, last: Option<u64>) -> Result
     let s = &sol.ins;
     ensure!(
         s.t_us == imu_t_us,
-        "solution at {} µs for the IMU sample at {imu_t_us} µs",
+        "solution time not its IMU sample's: {} µs for {imu_t_us} µs",
         s.t_us
     );
     ensure!(
         last.is_none_or(|l| s.t_us > l),
-        "solution at {} µs not after the previous one at {last:?} µs",
+        "solution not after the previous one: {} µs after {last:?} µs",
         s.t_us
     );
     let c = &s.cov;
@@ -891,9 +893,16 @@ fn check_solution(sol: &NavSolution, imu_t_us: u64, last: Option<u64>) -> Result
         && mats3.iter().all(|m| m.iter().all(|x| x.is_finite()))
         && c.air_data.iter().all(|x| x.is_finite());
     ensure!(finite, "non-finite solution: {s:?}");
+    // Geodetic latitude is ±90° by definition: beyond it the state is garbage however finite.
+    ensure!(
+        s.pos.lat_rad.abs() <= std::f64::consts::FRAC_PI_2,
+        "latitude out of its domain: {} rad in {:?}",
+        s.pos.lat_rad,
+        s.pos
+    );
     ensure!(
         (q.norm() - 1.0).abs() < 1e-6,
-        "attitude quaternion of norm {}",
+        "attitude quaternion not unit: norm {}",
         q.norm()
     );
     ensure!(

@@ -199,10 +199,20 @@ mod tests {
         );
         // A bad CRC or a wrong key: dropped by the crate.
         spec.crc_xor = 1;
-        let mut r = MavlinkReader::new(&spec.encode()[..]);
-        assert!(
-            r.read_any_raw_message_signed::<apm::MavMessage>(Some(&signing))
-                .is_err()
-        );
+        let bad_crc = spec.encode();
+        spec.crc_xor = 0;
+        spec.signature = spec.signature.map(|s| Signature {
+            key: [1; 32],
+            timestamp: s.timestamp + 1,
+            ..s
+        });
+        let bad_key = spec.encode();
+        for bytes in [bad_crc, bad_key] {
+            let mut r = MavlinkReader::new(bytes.as_slice());
+            assert!(
+                r.read_any_raw_message_signed::<apm::MavMessage>(Some(&signing))
+                    .is_err()
+            );
+        }
     }
 }
