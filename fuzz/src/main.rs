@@ -28,11 +28,14 @@ struct Cli {
 
 #[derive(Subcommand)]
 enum Cmd {
-    /// Generate and run inputs `0..inputs` of `seed` (stops early after `seconds`).
+    /// Generate and run inputs `from..from + inputs` of `seed` (stops early after `seconds`).
     Run {
         /// Seed of the run.
         #[arg(long, default_value_t = 1)]
         seed: u64,
+        /// First input index (to split one run over processes: same inputs).
+        #[arg(long, default_value_t = 0)]
+        from: u64,
         /// Inputs to run.
         #[arg(long, default_value_t = 1_000_000)]
         inputs: u64,
@@ -121,7 +124,7 @@ fn save(out: &std::path::Path, name: &str, input: &Input) -> anyhow::Result<Path
 fn run(
     starts: &Starts,
     seed: u64,
-    inputs: u64,
+    indices: std::ops::Range<u64>,
     seconds: f64,
     keep_going: bool,
     strict: bool,
@@ -137,7 +140,8 @@ fn run(
     let mut findings: Vec<(String, u64)> = Vec::new();
     let mut last_progress = 0.0;
     let mut done = 0;
-    for index in 0..inputs {
+    let from = indices.start;
+    for index in indices {
         if index % 1024 == 0 {
             let el = t0.elapsed().as_secs_f64();
             if seconds > 0.0 && el >= seconds {
@@ -146,8 +150,9 @@ fn run(
             if progress > 0.0 && el - last_progress >= progress {
                 last_progress = el;
                 println!(
-                    "progress: {index} inputs, {el:.0} s, {:.0}/s, {} findings",
-                    index as f64 / el,
+                    "progress: {} inputs, {el:.0} s, {:.0}/s, {} findings",
+                    index - from,
+                    (index - from) as f64 / el,
                     findings.len()
                 );
             }
@@ -155,7 +160,7 @@ fn run(
         let input = mutate::generate(starts, seed, index);
         digest = fnv1a(digest, &input.to_bytes());
         let o = run_catching(starts, &input);
-        done = index + 1;
+        done = index + 1 - from;
         match &o {
             Outcome::Pass(s) => {
                 totals.add(s);
@@ -192,7 +197,7 @@ fn run(
     }
     let el = t0.elapsed().as_secs_f64();
     println!(
-        "seed {seed}: {done} inputs in {el:.1} s ({:.0} inputs/s), {} findings, digest {digest:016x}",
+        "seed {seed}: {done} inputs (from {from}) in {el:.1} s ({:.0} inputs/s), {} findings, digest {digest:016x}",
         done as f64 / el.max(1e-9),
         findings.len()
     );
@@ -218,6 +223,7 @@ fn main() -> anyhow::Result<ExitCode> {
     let ok = match cli.cmd {
         Cmd::Run {
             seed,
+            from,
             inputs,
             seconds,
             keep_going,
@@ -225,7 +231,14 @@ fn main() -> anyhow::Result<ExitCode> {
             out,
             progress,
         } => run(
-            &starts, seed, inputs, seconds, keep_going, strict, &out, progress,
+            &starts,
+            seed,
+            from..from.saturating_add(inputs),
+            seconds,
+            keep_going,
+            strict,
+            &out,
+            progress,
         )?,
         Cmd::Replay {
             seed,
