@@ -50,6 +50,9 @@ enum Cmd {
         /// Fail on known findings too.
         #[arg(long)]
         strict: bool,
+        /// Minimise the first input of each known finding too (new ones always are).
+        #[arg(long)]
+        minimise_known: bool,
         /// Directory for reproducers of findings.
         #[arg(long, default_value = "target/fuzz-findings")]
         out: PathBuf,
@@ -128,6 +131,7 @@ fn run(
     seconds: f64,
     keep_going: bool,
     strict: bool,
+    minimise_known: bool,
     out: &std::path::Path,
     progress: f64,
 ) -> anyhow::Result<bool> {
@@ -171,18 +175,23 @@ fn run(
                 if let Some(f) = findings.iter_mut().find(|(s, _)| *s == sig) {
                     f.1 += 1;
                 } else {
-                    let tag = if is_known(&sig) {
+                    let known = is_known(&sig);
+                    let tag = if known {
                         "known finding"
                     } else {
                         "NEW FINDING"
                     };
                     println!("{tag} at seed {seed} index {index}: {o:?}");
-                    let min = minimise(starts, &input, 20_000);
-                    let p = save(out, &format!("seed{seed}-index{index}.bin"), &min)?;
+                    let saved = if known && !minimise_known {
+                        input
+                    } else {
+                        minimise(starts, &input, 20_000)
+                    };
+                    let p = save(out, &format!("seed{seed}-index{index}.bin"), &saved)?;
                     println!(
-                        "  minimised to {} datagrams, {} bytes: {} (replay: ianav-fuzz exec {})",
-                        min.datagrams.len(),
-                        min.datagrams.iter().map(|d| d.bytes.len()).sum::<usize>(),
+                        "  {} datagrams, {} bytes: {} (replay: ianav-fuzz exec {})",
+                        saved.datagrams.len(),
+                        saved.datagrams.iter().map(|d| d.bytes.len()).sum::<usize>(),
                         p.display(),
                         p.display()
                     );
@@ -228,6 +237,7 @@ fn main() -> anyhow::Result<ExitCode> {
             seconds,
             keep_going,
             strict,
+            minimise_known,
             out,
             progress,
         } => run(
@@ -237,6 +247,7 @@ fn main() -> anyhow::Result<ExitCode> {
             seconds,
             keep_going,
             strict,
+            minimise_known,
             &out,
             progress,
         )?,
