@@ -107,6 +107,8 @@ pub struct MessageSweep {
     pub cases: u64,
     /// Payloads the dialect refused (an invalid enum value).
     pub parse_errors: u64,
+    /// Cases that ended in a known finding (`fuzz/known-findings.txt`).
+    pub known: u64,
     /// Cases after which the valid traffic gave no solution (a time jump, a reboot taken, an
     /// autopilot change: the daemon's time handling, reported, not an oracle failure).
     pub stalled: u64,
@@ -148,10 +150,11 @@ fn template(start: &Start, id: u32) -> Option<(u64, u64, apm::MavMessage)> {
 }
 
 /// Run the sweep on the flying daemons of both variants. `run` executes one input (catching
-/// panics) and returns its solution count and parse errors, or the failure message.
+/// panics) and returns its solution count and parse errors (`None`: a known finding), or the
+/// failure message.
 pub fn sweep(
     starts: &Starts,
-    mut run: impl FnMut(&Input) -> Result<(u64, u64), String>,
+    mut run: impl FnMut(&Input) -> Result<Option<(u64, u64)>, String>,
 ) -> Result<Vec<MessageSweep>, Box<SweepFailure>> {
     let mut out: Vec<MessageSweep> = ACCEPTED
         .iter()
@@ -159,6 +162,7 @@ pub fn sweep(
             name,
             cases: 0,
             parse_errors: 0,
+            known: 0,
             stalled: 0,
             stalled_at: Vec::new(),
         })
@@ -223,7 +227,8 @@ pub fn sweep(
                             Variant::Ardupilot => "ArduPilot",
                         };
                         match run(&input) {
-                            Ok((solutions, parse_errors)) => {
+                            Ok(None) => s.known += 1,
+                            Ok(Some((solutions, parse_errors))) => {
                                 s.parse_errors += parse_errors;
                                 if solutions == 0 {
                                     s.stalled += 1;

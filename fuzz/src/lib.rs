@@ -59,6 +59,17 @@ impl Outcome {
     }
 }
 
+/// Whether `o` is a finding listed in `fuzz/known-findings.txt`.
+pub fn is_known(o: &Outcome) -> bool {
+    static KNOWN: std::sync::OnceLock<Vec<(String, String)>> = std::sync::OnceLock::new();
+    let sig = o.signature();
+    o.failed()
+        && KNOWN
+            .get_or_init(known_findings)
+            .iter()
+            .any(|(k, _)| *k == sig)
+}
+
 /// Findings that are reported and tracked but do not fail a run (`fuzz/known-findings.txt`):
 /// (signature, reason).
 pub fn known_findings() -> Vec<(String, String)> {

@@ -4,7 +4,7 @@
 
 use ianav_fuzz::input::{Input, Stage, Starts};
 use ianav_fuzz::pipeline::{Datagram, Variant};
-use ianav_fuzz::{Outcome, extremes, mutate, run_catching, scenario, wire};
+use ianav_fuzz::{Outcome, extremes, is_known, mutate, run_catching, scenario, wire};
 use mavlink::MavlinkVersion;
 use mavlink::dialects::ardupilotmega as apm;
 
@@ -22,6 +22,15 @@ fn from_hex(s: &str) -> Vec<u8> {
 fn assert_pass(starts: &Starts, input: &Input) -> ianav_fuzz::pipeline::Stats {
     match run_catching(starts, input) {
         Outcome::Pass(s) => *s,
+        o => panic!("{o:?}"),
+    }
+}
+
+/// The stats of a passing input, `None` for a known finding; panics on a new finding.
+fn no_new_finding(starts: &Starts, input: &Input) -> Option<ianav_fuzz::pipeline::Stats> {
+    match run_catching(starts, input) {
+        Outcome::Pass(s) => Some(*s),
+        o if is_known(&o) => None,
         o => panic!("{o:?}"),
     }
 }
@@ -46,7 +55,8 @@ fn the_issue_14_gps_height_overflow_found_by_the_fuzzer_passes() {
 fn every_accepted_message_with_every_field_at_its_extremes_passes_the_oracle() {
     let starts = starts();
     let report = extremes::sweep(&starts, |i| match run_catching(&starts, i) {
-        Outcome::Pass(s) => Ok((s.solutions, s.parse_errors)),
+        Outcome::Pass(s) => Ok(Some((s.solutions, s.parse_errors))),
+        o if is_known(&o) => Ok(None),
         o => Err(format!("{o:?}")),
     })
     .unwrap_or_else(|f| panic!("{}: {} ({:?})", f.case, f.message, f.input.to_bytes()));
@@ -75,7 +85,7 @@ fn the_same_seed_gives_the_same_inputs_and_results() {
     assert_ne!(a, run(8));
     // Input i is generated alone (replay of one input).
     assert_eq!(mutate::generate(&starts, 7, 123), a[123].0);
-    assert!(a.iter().all(|(_, o)| !o.failed()), "{a:?}");
+    assert!(a.iter().all(|(_, o)| !o.failed() || is_known(o)), "{a:?}");
 }
 
 #[test]
@@ -95,12 +105,18 @@ fn every_start_is_reached_and_inputs_use_them_all() {
 }
 
 #[test]
-fn a_short_fixed_seed_run_finds_nothing_and_reaches_the_navigation() {
+fn a_short_fixed_seed_run_finds_nothing_new_and_reaches_the_navigation() {
     let starts = starts();
     let mut total = ianav_fuzz::pipeline::Stats::default();
+    let mut known = 0;
     for i in 0..3_000 {
-        total.add(&assert_pass(&starts, &mutate::generate(&starts, 14, i)));
+        match no_new_finding(&starts, &mutate::generate(&starts, 14, i)) {
+            Some(s) => total.add(&s),
+            None => known += 1,
+        }
     }
+    // Known findings (a stamp days ahead with the autopilot clock) are about 1 % of inputs.
+    assert!(known < 100, "{known} known findings");
     // The mutations reach every stage of the path.
     assert!(total.frames > 10_000 && total.parse_errors > 0, "{total:?}");
     assert!(total.v1_frames > 0 && total.signed_frames > 0, "{total:?}");
