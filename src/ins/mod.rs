@@ -44,6 +44,11 @@ use position::{DeniedNav, GnssFilter, GnssPhaseEstimates, PositionInit};
 /// Largest number of propagation sub-steps of one IMU interval (bounds the work of a very
 /// long gap; beyond `MAX_SUBSTEPS · max_substep_s` the sub-steps get longer).
 const MAX_SUBSTEPS: u32 = 10_000;
+/// IMU intervals longer than this are refused, not propagated, s. Dead reckoning over a gap
+/// means nothing beyond a few seconds; a stamp days ahead (a corrupt or misread time) stepped
+/// the INS over the whole gap to latitudes past ±90° and NaN (found by the fuzzer,
+/// docs/RELIABILITY.md). A driver whose time really jumped re-initialises the INS.
+pub const MAX_PROPAGATED_INTERVAL_S: f64 = 30.0;
 /// Microseconds per second.
 const US_PER_S: f64 = 1e6;
 
@@ -284,6 +289,9 @@ pub struct InsStats {
     pub imu_before_init: u64,
     /// IMU steps longer than `imu_gap_s` (propagated in sub-steps and flagged).
     pub imu_gaps: u64,
+    /// IMU samples refused because they came more than [`MAX_PROPAGATED_INTERVAL_S`] after
+    /// the last step.
+    pub imu_interval_too_long: u64,
     /// GNSS fixes fused.
     pub gnss_fused: u64,
     /// GNSS fixes refused by the innovation gate.
@@ -494,6 +502,15 @@ impl Ins {
     }
 
     fn push_imu(&mut self, s: &ImuSample) -> Option<InsSolution> {
+        // Before the ordering gate, which would otherwise take the outlier's time as the
+        // latest and refuse every good sample after it.
+        if let Some(core) = self.core.as_deref()
+            && s.t_us > core.t_us
+            && (s.t_us - core.t_us) as f64 / US_PER_S > MAX_PROPAGATED_INTERVAL_S
+        {
+            self.stats.imu_interval_too_long += 1;
+            return None;
+        }
         if !accept(
             &mut self.stats.imu,
             &mut self.last_imu_us,

@@ -775,6 +775,40 @@ fn imu_gap_is_sub_stepped_and_flagged() {
     assert_eq!(s.superseded, 100);
 }
 
+#[test]
+fn a_lone_imu_sample_a_day_ahead_is_refused_and_the_ins_goes_on() {
+    // One IMU sample stamped a day after 100 s in the turn: refused and counted (not
+    // propagated over the day, not taken as the latest time by the ordering gate), and
+    // the samples after it are used as if it had not come.
+    let mut synth = Synth::new(turn_motion(10.0), 100.0, 7);
+    let mut ins = new_ins(&mut synth);
+    let mut solutions_after = 0;
+    run_with(
+        &mut synth,
+        &mut ins,
+        150.0,
+        |tr, e| match e {
+            SensorEvent::Imu(s) if tr.t_us == 100_000_000 => {
+                let mut ahead = s;
+                ahead.t_us += 86_400_000_000;
+                vec![SensorEvent::Imu(ahead), SensorEvent::Imu(s)]
+            }
+            _ => vec![e],
+        },
+        |_, tr, sol| {
+            check_consistent(tr, sol);
+            assert!(att_err(tr, sol).norm() < ATT_NORM_MAX_RAD);
+            assert!(sol.dt_s < 0.1, "no step over the outlier's gap");
+            if tr.t_us > 100_000_000 {
+                solutions_after += 1;
+            }
+        },
+    );
+    assert_eq!(ins.stats().imu_interval_too_long, 1);
+    // 50 s at 100 Hz after the outlier.
+    assert!(solutions_after >= 4_999, "{solutions_after}");
+}
+
 /// Invalid, duplicated and out-of-order samples injected after the IMU sample of step `k`.
 fn garbage(t_us: u64, k: u64) -> Vec<SensorEvent> {
     let imu = |gyro: Vector3<f64>, accel: Vector3<f64>, t_us| {
