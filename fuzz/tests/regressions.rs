@@ -169,14 +169,12 @@ fn a_lone_imu_sample_stamped_30_days_ahead_is_harmless_with_the_daemon_clock() {
     assert_eq!(s.solutions, 1, "{s:?}");
 }
 
-/// Known finding "latitude out of its domain" (fuzz/known-findings.txt; issue 14 item 5).
-/// With `clock = "autopilot"` the sample's own time is taken: the INS steps over 36 days
-/// and dead-reckons at 25 m/s for 78,000 km; the latitude ends several radians past ±90°. The fix
-/// belongs to the time handling (refuse a lone outlier stamp, src/io/timesync.rs) and/or the
-/// INS (bound the step, keep the latitude in its domain, src/ins).
+/// Fixed finding "latitude out of its domain". With `clock = "autopilot"` the sample's own time
+/// is taken: the INS stepped over 36 days and dead-reckoned at 25 m/s for 78,000 km, to a
+/// latitude several radians past ±90°. The INS now refuses an IMU interval over
+/// `MAX_PROPAGATED_INTERVAL_S` (src/ins/mod.rs).
 #[test]
-#[ignore = "known finding, issue 14 item 5: passes once the fix lands"]
-fn known_a_lone_imu_sample_stamped_36_days_ahead_with_the_autopilot_clock() {
+fn fixed_finding_a_lone_imu_sample_stamped_36_days_ahead_with_the_autopilot_clock() {
     let starts = starts();
     assert_pass(
         &starts,
@@ -184,16 +182,14 @@ fn known_a_lone_imu_sample_stamped_36_days_ahead_with_the_autopilot_clock() {
     );
 }
 
-/// Open finding "non-finite solution" (4 of the 10 M inputs of seed 2026; this is input
+/// Fixed finding "non-finite solution" (4 of the 10 M inputs of seed 2026; this is input
 /// 9,781,645 minimised). A flying ArduPilot daemon (`clock = "autopilot"`) gets a SCALED_IMU
 /// stamped 12.8 days ahead: the decoder refuses it (17 g) but the clock has already taken its
 /// stamp. A SYSTEM_TIME at the real time then looks like a reboot, the time jumps by 12.8 days,
-/// and the next IMU sample makes the INS step over 1,103,299 s to a NaN position and velocity.
-/// The fix belongs to the time handling (issue 14 item 5: a lone outlier stamp, and a refused
-/// sample's, must not move the clock) and to the INS (bound a step; never publish NaN).
+/// and the next IMU sample made the INS step over 1,103,299 s to a NaN position and velocity.
+/// The INS now refuses that interval (src/ins/mod.rs `MAX_PROPAGATED_INTERVAL_S`).
 #[test]
-#[ignore = "open finding, issue 14 item 5 and src/ins: passes once the fix lands"]
-fn open_finding_a_clock_jump_of_12_days_makes_the_ins_solution_nan() {
+fn fixed_finding_a_clock_jump_of_12_days_made_the_ins_solution_nan() {
     let starts = starts();
     let input = Input::from_bytes(&from_hex(concat!(
         "070060ea00006600fd0c0000b101011a00000000c3410000b94397040002589efd0a0000b50101",

@@ -290,7 +290,7 @@ pub struct InsStats {
     /// IMU steps longer than `imu_gap_s` (propagated in sub-steps and flagged).
     pub imu_gaps: u64,
     /// IMU samples refused because they came more than [`MAX_PROPAGATED_INTERVAL_S`] after
-    /// the last step.
+    /// the last step (also counted in `imu.rejected_time`).
     pub imu_interval_too_long: u64,
     /// GNSS fixes fused.
     pub gnss_fused: u64,
@@ -504,10 +504,17 @@ impl Ins {
     fn push_imu(&mut self, s: &ImuSample) -> Option<InsSolution> {
         // Before the ordering gate, which would otherwise take the outlier's time as the
         // latest and refuse every good sample after it.
-        if let Some(core) = self.core.as_deref()
-            && s.t_us > core.t_us
-            && (s.t_us - core.t_us) as f64 / US_PER_S > MAX_PROPAGATED_INTERVAL_S
+        // The first sample is measured from the initial state's time of validity (its carry
+        // over a fix's age would otherwise run over the whole gap).
+        let last_us = match (self.core.as_deref(), self.init.valid_at_us) {
+            (Some(core), _) => Some(core.t_us),
+            (None, valid_at_us) => valid_at_us,
+        };
+        if let Some(last_us) = last_us
+            && s.t_us.abs_diff(last_us) as f64 / US_PER_S > MAX_PROPAGATED_INTERVAL_S
+            && (self.core.is_none() || s.t_us > last_us)
         {
+            self.stats.imu.rejected_time += 1;
             self.stats.imu_interval_too_long += 1;
             return None;
         }
