@@ -670,7 +670,7 @@ impl InputDecoder {
             || !(H_RANGE_M.0..=H_RANGE_M.1).contains(&h_m)
             || (m.alt_ellipsoid != 0 && (alt_ellipsoid_m - alt_m).abs() > MAX_UNDULATION_M)
             || speed > MAX_GROUND_SPEED_MPS
-            || m.cog >= 36_000
+            || m.cog > 36_000
         {
             return Err(Reject::OutOfRange);
         }

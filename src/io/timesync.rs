@@ -59,7 +59,8 @@ pub const RATE_WINDOW_US: u64 = 1_000_000;
 /// module documentation).
 pub const FORWARD_SLACK_US: u64 = 500_000;
 /// Consecutive stamps that must fit a candidate track, none fitting the current one, before it
-/// replaces it (a reboot or a time jump) or becomes the first track. Five: 50 ms of a 100 Hz
+/// replaces it (a reboot or a time jump), and that must fit the first track before it is more
+/// than provisional. Five: 50 ms of a 100 Hz
 /// IMU, 125 ms of ArduPlane's 40 Hz; a lone outlier, or a few, never reach it.
 pub const CLOCK_CONFIRM_SAMPLES: u32 = 5;
 /// Rise of the receipt envelope per clock message, µs.
@@ -123,6 +124,8 @@ struct Track {
     anchor: (u64, u64),
     /// Rate of the autopilot's clock against ours, measured over the last window.
     rate: Option<f64>,
+    /// Stamps that fitted it, the first included.
+    fitted: u32,
 }
 
 impl Track {
@@ -132,6 +135,7 @@ impl Track {
             newest_rx_us: rx_us,
             anchor: (ap_us, rx_us),
             rate: None,
+            fitted: 1,
         }
     }
 
@@ -152,6 +156,7 @@ impl Track {
     }
 
     fn add(&mut self, ap_us: u64, rx_us: u64) {
+        self.fitted = self.fitted.saturating_add(1);
         if ap_us <= self.newest_ap_us {
             return;
         }
@@ -342,9 +347,15 @@ impl TimeSync {
             return ClockStamp::Fits;
         }
         let fixed_rate = self.fixed_rate();
-        if let Some(track) = &mut self.track
-            && track.fits(ap_us, rx_us, fixed_rate)
-        {
+        let Some(track) = &mut self.track else {
+            // The first stamp starts the track at once: nothing is held at the start. Until
+            // CLOCK_CONFIRM_SAMPLES have fitted it, a confirmed candidate replaces it as no
+            // reboot, should that first stamp have been an outlier.
+            self.track = Some(Track::start(ap_us, rx_us));
+            self.update_envelope(ap_us, rx_us);
+            return ClockStamp::Fits;
+        };
+        if track.fits(ap_us, rx_us, fixed_rate) {
             track.add(ap_us, rx_us);
             if let Some(c) = self.candidate.take() {
                 self.counters.clock_outliers += u64::from(c.n);
@@ -377,6 +388,11 @@ impl TimeSync {
         self.counters.clock_held += u64::from(c.n - 1);
         let outcome = match self.track {
             None => ClockStamp::Fits,
+            Some(old) if old.fitted < CLOCK_CONFIRM_SAMPLES => {
+                // A provisional first track replaced: it was the outliers.
+                self.counters.clock_outliers += u64::from(old.fitted);
+                ClockStamp::Fits
+            }
             Some(old) if c.went_back => {
                 self.counters.reboots += 1;
                 // Autopilot clock: continue after the last time of the previous boot.
@@ -646,19 +662,13 @@ mod tests {
     fn envelope_maps_before_timesync_and_a_reboot_is_detected() {
         let mut ts = TimeSync::new(10 * MS);
         assert_eq!(ts.map(ApTime::BootMs(10), 1_000), None, "no offset yet");
-        // Autopilot boot time 0 = our 5 s; latency 3 ms, once only 1 ms. The first stamps are
-        // held until CLOCK_CONFIRM_SAMPLES agree.
+        // Autopilot boot time 0 = our 5 s; latency 3 ms, once only 1 ms. Nothing held at the
+        // start.
         for k in 0..100_u64 {
             let ap = k * 20_000;
             let lat = if k == 50 { 1_000 } else { 3_000 };
-            let want = if k + 1 < u64::from(CLOCK_CONFIRM_SAMPLES) {
-                ClockStamp::Held
-            } else {
-                ClockStamp::Fits
-            };
-            assert_eq!(ts.observe_clock(ap, 5_000_000 + ap + lat), want, "{k}");
+            assert_eq!(ts.observe_clock(ap, 5_000_000 + ap + lat), ClockStamp::Fits);
         }
-        assert_eq!(ts.counters().clock_held, 4);
         let off = ts.offset_us().unwrap();
         // Envelope = 5 s + 1 ms, plus at most 49 µs of leak since the 1 ms sample.
         assert!((5_001_000..=5_001_049).contains(&off), "{off}");
@@ -688,7 +698,7 @@ mod tests {
         assert_eq!(ts.observe_clock(50_000, 20_050_500), ClockStamp::Fits);
         assert_eq!(
             (ts.counters().clock_held, ts.counters().clock_outliers),
-            (8, 0)
+            (4, 0)
         );
     }
 
@@ -738,6 +748,21 @@ mod tests {
     fn stream(ts: &mut TimeSync, ks: std::ops::Range<u64>) -> Vec<ClockStamp> {
         ks.map(|k| ts.observe_clock(k * 10_000, 5_002_000 + k * 10_000))
             .collect()
+    }
+
+    #[test]
+    fn a_first_stamp_that_is_an_outlier_is_replaced_without_a_reboot() {
+        let mut ts = TimeSync::new(10 * MS);
+        assert_eq!(ts.observe_clock(3_600_000_000, 5_001_000), ClockStamp::Fits);
+        let r = stream(&mut ts, 0..10);
+        assert_eq!(r[..4], [ClockStamp::Held; 4]);
+        assert!(r[4..].iter().all(|r| *r == ClockStamp::Fits));
+        let c = *ts.counters();
+        assert_eq!(
+            (c.clock_outliers, c.clock_held, c.reboots, c.jumps),
+            (1, 4, 0, 0)
+        );
+        assert!((5_001_900..=5_002_000).contains(&ts.offset_us().unwrap()));
     }
 
     #[test]
