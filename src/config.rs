@@ -152,6 +152,13 @@ pub struct MavlinkConfig {
     /// Autopilot firmware.
     #[serde(default = "default_autopilot")]
     pub autopilot: AutopilotKind,
+    /// The autopilot's system id; 0 = the first flight controller heard (docs/DAEMON.md
+    /// "Link ownership").
+    #[serde(default)]
+    pub autopilot_system_id: u8,
+    /// The autopilot's component id; 0 = any.
+    #[serde(default)]
+    pub autopilot_component_id: u8,
     /// MAVLink 2 signing key: 64 hex digits or the base64 of 32 bytes. Empty = no signing.
     #[serde(default)]
     pub signing_key: String,

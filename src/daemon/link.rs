@@ -3,6 +3,11 @@
 //! sensor events, INS initialisation), the writer, and the periodic TIMESYNC and
 //! SET_MESSAGE_INTERVAL requests.
 //!
+//! Link ownership ([`AutopilotLock`]): the reader listens to one autopilot, the configured
+//! system/component or the first flight controller heard; every other sender is counted and
+//! ignored, and another autopilot is taken only after this one has been silent for the link
+//! timeout.
+//!
 //! The reader receives raw frames (`recv_raw`) and parses the payload itself, so that it can
 //! count MAVLink 1 and signed frames and payload parse errors on every transport. Frames with
 //! a bad CRC or an unknown message id, and (with `refuse_unsigned`) unsigned or MAVLink 1
@@ -14,7 +19,9 @@ use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
-use mavlink::{AsyncMavConnection, MAVLinkMessageRaw, MavHeader, Message, MessageData};
+use mavlink::{
+    AsyncMavConnection, MAVLinkMessageRaw, MavHeader, MavlinkVersion, Message, MessageData,
+};
 use tokio::sync::{mpsc, watch};
 
 use super::health::MIN_IMU_RATE_HZ;
@@ -22,9 +29,9 @@ use super::nav_thread::NavInput;
 use super::{Clock, Outbox, Shared, stopped_after};
 use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig};
 use crate::ins::InsInit;
-use crate::io::mavlink_in::{DecoderConfig, InputDecoder};
+use crate::io::mavlink_in::{self, DecoderConfig, InputDecoder};
 use crate::io::mavlink_out;
-use crate::io::timesync::{Kind, MonotonicGate, TimeSync};
+use crate::io::timesync::{self, ClockStamp, Kind, MonotonicGate, TimeSync};
 use crate::sensors::SensorEvent;
 use mavlink::dialects::ardupilotmega as apm;
 
@@ -100,55 +107,209 @@ pub(super) async fn writer(
     }
 }
 
-/// Frames missing from a sender's 8-bit sequence. The mavlink crate drops frames with a bad
-/// CRC, an unknown message id or a refused signature without telling us (rust-mavlink #209);
-/// each of them, like a lost datagram, leaves a gap in the autopilot's sequence.
-#[derive(Debug, Clone)]
-pub(super) struct SequenceTracker {
-    /// Last sequence number per component id.
-    last: [Option<u8>; 256],
-    /// Frames missing (gaps of 1–127).
-    pub lost: u64,
-    /// Frames repeated or arriving late (gaps of 128–255, i.e. behind the previous one).
-    pub reordered: u64,
+/// Whether a HEARTBEAT is a flight controller's: a MAVLink autopilot (not
+/// MAV_AUTOPILOT_INVALID) on a vehicle, not a ground station, companion computer, camera,
+/// gimbal, ADS-B receiver or other peripheral. MAV_TYPE_GENERIC is not a vehicle either: it is
+/// what tools send when they fill nothing in (pymavlink's `heartbeat_send(0, 0, …)`).
+pub fn is_flight_controller(h: &apm::HEARTBEAT_DATA) -> bool {
+    use apm::MavType as T;
+    if h.autopilot == apm::MavAutopilot::MAV_AUTOPILOT_INVALID {
+        return false;
+    }
+    // Exhaustive on purpose: a MAV_TYPE added to the dialect must be classified here.
+    match h.mavtype {
+        T::MAV_TYPE_FIXED_WING
+        | T::MAV_TYPE_QUADROTOR
+        | T::MAV_TYPE_COAXIAL
+        | T::MAV_TYPE_HELICOPTER
+        | T::MAV_TYPE_AIRSHIP
+        | T::MAV_TYPE_FREE_BALLOON
+        | T::MAV_TYPE_ROCKET
+        | T::MAV_TYPE_GROUND_ROVER
+        | T::MAV_TYPE_SURFACE_BOAT
+        | T::MAV_TYPE_SUBMARINE
+        | T::MAV_TYPE_HEXAROTOR
+        | T::MAV_TYPE_OCTOROTOR
+        | T::MAV_TYPE_TRICOPTER
+        | T::MAV_TYPE_FLAPPING_WING
+        | T::MAV_TYPE_KITE
+        | T::MAV_TYPE_VTOL_TAILSITTER_DUOROTOR
+        | T::MAV_TYPE_VTOL_TAILSITTER_QUADROTOR
+        | T::MAV_TYPE_VTOL_TILTROTOR
+        | T::MAV_TYPE_VTOL_FIXEDROTOR
+        | T::MAV_TYPE_VTOL_TAILSITTER
+        | T::MAV_TYPE_VTOL_TILTWING
+        | T::MAV_TYPE_VTOL_RESERVED5
+        | T::MAV_TYPE_PARAFOIL
+        | T::MAV_TYPE_DODECAROTOR
+        | T::MAV_TYPE_DECAROTOR
+        | T::MAV_TYPE_GENERIC_MULTIROTOR
+        | T::MAV_TYPE_SPACECRAFT_ORBITER
+        | T::MAV_TYPE_GROUND_QUADRUPED
+        | T::MAV_TYPE_VTOL_GYRODYNE => true,
+        T::MAV_TYPE_GENERIC
+        | T::MAV_TYPE_ANTENNA_TRACKER
+        | T::MAV_TYPE_GCS
+        | T::MAV_TYPE_ONBOARD_CONTROLLER
+        | T::MAV_TYPE_GIMBAL
+        | T::MAV_TYPE_ADSB
+        | T::MAV_TYPE_CAMERA
+        | T::MAV_TYPE_CHARGING_STATION
+        | T::MAV_TYPE_FLARM
+        | T::MAV_TYPE_SERVO
+        | T::MAV_TYPE_ODID
+        | T::MAV_TYPE_BATTERY
+        | T::MAV_TYPE_PARACHUTE
+        | T::MAV_TYPE_LOG
+        | T::MAV_TYPE_OSD
+        | T::MAV_TYPE_IMU
+        | T::MAV_TYPE_GPS
+        | T::MAV_TYPE_WINCH
+        | T::MAV_TYPE_ILLUMINATOR
+        | T::MAV_TYPE_GRIPPER
+        | T::MAV_TYPE_RADIO => false,
+    }
 }
 
-impl Default for SequenceTracker {
-    fn default() -> Self {
+/// Who sent a frame, for [`AutopilotLock::observe`].
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum Sender {
+    /// The autopilot the daemon listens to.
+    Autopilot,
+    /// No autopilot yet, and this is not one.
+    Unlocked,
+    /// Another system or component.
+    Foreign,
+    /// Another flight controller's HEARTBEAT, refused while the autopilot is heard.
+    OtherAutopilot,
+}
+
+/// A change of the autopilot listened to.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum LockChange {
+    /// The first autopilot.
+    Locked,
+    /// Another autopilot, after the previous one (system, component) fell silent.
+    Changed {
+        /// The previous autopilot.
+        from: (u8, u8),
+    },
+}
+
+/// Link ownership (docs/DAEMON.md "Link ownership"). The daemon listens to one autopilot
+/// (system, component): the configured one, or the first flight controller heard
+/// ([`is_flight_controller`]). Another flight controller's HEARTBEAT takes over only when the
+/// autopilot has sent nothing for `silence_us` (its reboot under a new id, or its
+/// replacement); the same autopilot rebooting keeps its ids and is detected from its clock
+/// (`io::timesync`). Pure: the caller passes the reception time.
+#[derive(Debug, Clone)]
+pub struct AutopilotLock {
+    want_sys: Option<u8>,
+    want_comp: Option<u8>,
+    silence_us: u64,
+    locked: Option<(u8, u8)>,
+    last_heard_us: u64,
+}
+
+impl AutopilotLock {
+    /// Listen to system `sys` and component `comp` (0: any), taking another autopilot after
+    /// `silence_us` without a message from the current one.
+    pub fn new(sys: u8, comp: u8, silence_us: u64) -> Self {
         Self {
-            last: [None; 256],
-            lost: 0,
-            reordered: 0,
+            want_sys: (sys != 0).then_some(sys),
+            want_comp: (comp != 0).then_some(comp),
+            silence_us,
+            locked: None,
+            last_heard_us: 0,
+        }
+    }
+
+    /// The autopilot listened to.
+    pub fn locked(&self) -> Option<(u8, u8)> {
+        self.locked
+    }
+
+    /// A frame from (`sys`, `comp`) received at `rx_us`, with its HEARTBEAT if it is one.
+    pub fn observe(
+        &mut self,
+        sys: u8,
+        comp: u8,
+        heartbeat: Option<&apm::HEARTBEAT_DATA>,
+        rx_us: u64,
+    ) -> (Sender, Option<LockChange>) {
+        if self.locked == Some((sys, comp)) {
+            self.last_heard_us = rx_us;
+            return (Sender::Autopilot, None);
+        }
+        let fc = heartbeat.is_some_and(is_flight_controller);
+        let wanted =
+            self.want_sys.is_none_or(|s| s == sys) && self.want_comp.is_none_or(|c| c == comp);
+        match self.locked {
+            None if fc && wanted => {
+                self.locked = Some((sys, comp));
+                self.last_heard_us = rx_us;
+                (Sender::Autopilot, Some(LockChange::Locked))
+            }
+            Some(from)
+                if fc && wanted && rx_us.saturating_sub(self.last_heard_us) >= self.silence_us =>
+            {
+                self.locked = Some((sys, comp));
+                self.last_heard_us = rx_us;
+                (Sender::Autopilot, Some(LockChange::Changed { from }))
+            }
+            None => (Sender::Unlocked, None),
+            Some(_) if fc => (Sender::OtherAutopilot, None),
+            Some(_) => (Sender::Foreign, None),
         }
     }
 }
 
+/// Frames missing from the autopilot's 8-bit sequence, per MAVLink version (a sender's
+/// MAVLink 1 and MAVLink 2 frames may be numbered apart, e.g. a router's, and a MAVLink 1 frame
+/// in a MAVLink 2 stream is no loss). The mavlink crate drops frames with a bad CRC, an unknown
+/// message id or a refused signature without telling us (rust-mavlink #209); each of them,
+/// like a lost datagram, leaves a gap.
+#[derive(Debug, Clone, Default)]
+pub(super) struct SequenceTracker {
+    /// Last sequence number: MAVLink 1, MAVLink 2.
+    last: [Option<u8>; 2],
+    /// Frames missing (gaps of 1–127): MAVLink 1, MAVLink 2.
+    pub lost: [u64; 2],
+    /// Frames repeated or arriving late (gaps of 128–255, i.e. behind the previous one).
+    pub reordered: [u64; 2],
+}
+
 impl SequenceTracker {
-    /// Account for a frame of component `comp` with sequence `seq`.
-    pub fn observe(&mut self, comp: u8, seq: u8) {
-        if let Some(last) = self.last[usize::from(comp)] {
+    /// Account for a frame of `version` with sequence `seq`.
+    pub fn observe(&mut self, version: MavlinkVersion, seq: u8) {
+        let v = usize::from(version == MavlinkVersion::V2);
+        if let Some(last) = self.last[v] {
             let gap = seq.wrapping_sub(last).wrapping_sub(1);
             match gap {
                 0 => {}
-                1..=127 => self.lost += u64::from(gap),
-                _ => self.reordered += 1,
+                1..=127 => self.lost[v] += u64::from(gap),
+                _ => self.reordered[v] += 1,
             }
         }
-        self.last[usize::from(comp)] = Some(seq);
+        self.last[v] = Some(seq);
     }
 
     /// Forget the sequences (the autopilot rebooted and restarts at 0).
     pub fn reset(&mut self) {
-        self.last = [None; 256];
+        self.last = [None; 2];
     }
 }
 
 /// Per-connection-independent state of the reader.
 struct ReaderState {
+    lock: AutopilotLock,
     ts: TimeSync,
     dec: InputDecoder,
     gate: MonotonicGate,
     seq: SequenceTracker,
+    /// The sequence counts before the first frame of a clock being confirmed: a confirmed
+    /// reboot restarts the sequence, which is no loss.
+    seq_before_candidate: Option<SequenceTracker>,
     init_sent: bool,
     /// Times of the IMU samples of the last [`INIT_IMU_WINDOW_US`], µs.
     recent_imu_us: VecDeque<u64>,
@@ -170,6 +331,11 @@ pub(super) async fn reader(
 ) {
     let p = &cfg.ins.position;
     let mut st = ReaderState {
+        lock: AutopilotLock::new(
+            cfg.mavlink.autopilot_system_id,
+            cfg.mavlink.autopilot_component_id,
+            (cfg.mavlink.link_timeout_s * 1e6) as u64,
+        ),
         ts: {
             let ts = TimeSync::new((cfg.mavlink.timesync_max_rtt_ms * 1e6) as u64);
             if cfg.mavlink.clock == crate::config::ClockSource::Autopilot {
@@ -188,6 +354,7 @@ pub(super) async fn reader(
         }),
         gate: MonotonicGate::default(),
         seq: SequenceTracker::default(),
+        seq_before_candidate: None,
         init_sent: false,
         recent_imu_us: VecDeque::new(),
         tas_mps: None,
@@ -296,69 +463,119 @@ async fn handle_raw(
         shared.count(|c| c.rx_foreign += 1);
         return true;
     }
-    if let M::HEARTBEAT(h) = &msg
-        && h.autopilot != apm::MavAutopilot::MAV_AUTOPILOT_INVALID
-    {
-        let kind = kind_of(cfg, h);
-        let new = shared.state(|s| {
-            let new = s.autopilot.is_none_or(|(a, _, _)| a != sys);
-            if new {
-                s.autopilot = Some((sys, comp, kind));
-                s.request_generation += 1;
-            }
-            new
-        });
-        if new {
-            tracing::info!(sys, comp, ?kind, "autopilot found");
-            st.dec
-                .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
-        }
-        shared.count(|c| c.autopilot_heartbeats += 1);
-    }
-    let Some((ap_sys, _, _)) = shared.state(|s| s.autopilot) else {
-        // Answer TIMESYNC from anyone; ignore the rest until the autopilot is known.
-        if let M::TIMESYNC(t) = &msg {
-            if let Some(reply) = st.ts.handle(t, clock.now_ns(), sys, comp) {
-                outbox.send(M::TIMESYNC(reply));
-            }
-        } else {
-            shared.count(|c| c.rx_before_heartbeat += 1);
-        }
-        return true;
-    };
-    if sys != ap_sys {
-        shared.count(|c| c.rx_foreign += 1);
-        return true;
-    }
-    shared.state(|s| s.last_rx_us = Some(rx_us));
-    let clock_stamp_us = match &msg {
-        M::HIGHRES_IMU(m) => Some(m.time_usec),
-        M::RAW_IMU(m) => Some(m.time_usec),
-        M::SCALED_IMU(m) => Some(u64::from(m.time_boot_ms) * 1_000),
-        M::ATTITUDE(m) => Some(u64::from(m.time_boot_ms) * 1_000),
-        M::SYSTEM_TIME(m) => Some(u64::from(m.time_boot_ms) * 1_000),
+    let heartbeat = match &msg {
+        M::HEARTBEAT(h) => Some(h),
         _ => None,
     };
-    if let Some(ap_us) = clock_stamp_us
-        && st.ts.observe_clock(ap_us, rx_us)
-    {
-        st.dec.reset();
-        st.seq.reset();
-        st.recent_imu_us.clear();
-        shared.state(|s| s.request_generation += 1);
-        shared.count(|c| c.autopilot_reboots += 1);
-        outbox.status(
-            apm::MavSeverity::MAV_SEVERITY_WARNING,
-            "ianav: autopilot reboot detected",
-        );
+    let (sender, change) = st.lock.observe(sys, comp, heartbeat, rx_us);
+    if let (Some(change), Some(h)) = (change, heartbeat) {
+        let kind = kind_of(cfg, h);
+        match change {
+            LockChange::Locked => tracing::info!(sys, comp, ?kind, "autopilot found"),
+            LockChange::Changed { from } => {
+                // Another autopilot, another clock and stream: start over as after a reboot.
+                st.ts.restart();
+                st.dec.reset();
+                st.seq = SequenceTracker::default();
+                st.seq_before_candidate = None;
+                st.recent_imu_us.clear();
+                shared.count(|c| c.autopilot_changes += 1);
+                outbox.status(
+                    apm::MavSeverity::MAV_SEVERITY_WARNING,
+                    &format!(
+                        "ianav: autopilot {}/{} silent, now {sys}/{comp}",
+                        from.0, from.1
+                    ),
+                );
+            }
+        }
+        shared.state(|s| {
+            s.autopilot = Some((sys, comp, kind));
+            s.request_generation += 1;
+        });
+        st.dec
+            .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
     }
-    // After the reboot check: a reboot restarts the sequence, which is not a loss.
-    st.seq.observe(comp, raw.sequence());
-    let (lost, reordered) = (st.seq.lost, st.seq.reordered);
-    shared.count(|c| {
-        c.rx_seq_lost = lost;
-        c.rx_seq_reordered = reordered;
+    if sender != Sender::Autopilot {
+        // TIMESYNC requests are answered from anyone; responses count only from the autopilot.
+        if let M::TIMESYNC(t) = &msg
+            && t.tc1 == 0
+            && let Some(reply) = st.ts.handle(t, clock.now_ns(), sys, comp)
+        {
+            outbox.send(M::TIMESYNC(reply));
+        }
+        let input = mavlink_in::is_input(&msg);
+        shared.count(|c| match sender {
+            Sender::Unlocked => c.rx_before_heartbeat += 1,
+            _ => {
+                c.rx_foreign += 1;
+                c.rx_foreign_heartbeats += u64::from(heartbeat.is_some());
+                c.rx_foreign_autopilots += u64::from(sender == Sender::OtherAutopilot);
+                c.rx_foreign_input += u64::from(input);
+            }
+        });
+        return true;
+    }
+    if heartbeat.is_some() {
+        shared.count(|c| c.autopilot_heartbeats += 1);
+    }
+    let outage_after_us = (cfg.mavlink.link_timeout_s * 1e6) as u64;
+    shared.state(|s| {
+        if let Some(last) = s.last_rx_us
+            && rx_us.saturating_sub(last) >= outage_after_us
+        {
+            s.last_outage_us = Some(rx_us - last);
+        }
+        s.last_rx_us = Some(rx_us);
     });
+    let stamp = timesync::clock_stamp_us(&msg).map(|ap_us| st.ts.observe_clock(ap_us, rx_us));
+    match stamp {
+        Some(ClockStamp::Held) => {
+            st.seq_before_candidate
+                .get_or_insert_with(|| st.seq.clone());
+        }
+        Some(ClockStamp::Reboot) => {
+            // The new boot's sequence restarted: no loss since the first frame held.
+            if let Some(before) = st.seq_before_candidate.take() {
+                st.seq = before;
+            }
+            st.seq.reset();
+            st.dec.reset();
+            st.recent_imu_us.clear();
+            shared.state(|s| s.request_generation += 1);
+            shared.count(|c| c.autopilot_reboots += 1);
+            outbox.status(
+                apm::MavSeverity::MAV_SEVERITY_WARNING,
+                "ianav: autopilot reboot detected",
+            );
+        }
+        Some(ClockStamp::Jump) => {
+            st.seq_before_candidate = None;
+            st.dec.reset();
+            st.recent_imu_us.clear();
+            shared.state(|s| s.request_generation += 1);
+            shared.count(|c| c.autopilot_time_jumps += 1);
+            outbox.status(
+                apm::MavSeverity::MAV_SEVERITY_WARNING,
+                "ianav: autopilot clock jumped",
+            );
+        }
+        Some(ClockStamp::Fits) => st.seq_before_candidate = None,
+        None => {}
+    }
+    st.seq.observe(raw.version(), raw.sequence());
+    let (seq, tc) = (st.seq.clone(), *st.ts.counters());
+    shared.count(|c| {
+        c.rx_seq_lost_v1 = seq.lost[0];
+        c.rx_seq_lost = seq.lost[1];
+        c.rx_seq_reordered_v1 = seq.reordered[0];
+        c.rx_seq_reordered = seq.reordered[1];
+        c.timesync = tc;
+    });
+    if stamp == Some(ClockStamp::Held) {
+        // Not on the autopilot's clock (yet): its time would be wrong (io::timesync).
+        return true;
+    }
     match &msg {
         M::TIMESYNC(t) => {
             if let Some(reply) = st.ts.handle(t, clock.now_ns(), sys, comp) {
@@ -627,31 +844,148 @@ pub(super) async fn interval_requests(
 
 #[cfg(test)]
 mod tests {
-    use super::SequenceTracker;
+    use super::*;
+    use MavlinkVersion::{V1, V2};
 
     #[test]
-    fn sequence_gaps_count_missing_frames_and_late_ones_apart() {
+    fn sequence_gaps_count_missing_frames_and_late_ones_apart_per_mavlink_version() {
         let mut t = SequenceTracker::default();
         for seq in [250, 251, 252] {
-            t.observe(1, seq);
+            t.observe(V2, seq);
         }
-        assert_eq!((t.lost, t.reordered), (0, 0));
+        assert_eq!((t.lost, t.reordered), ([0, 0], [0, 0]));
         // 253 and 254 dropped (say a bad CRC); wrap-around 255 → 0 is no gap.
-        t.observe(1, 255);
-        t.observe(1, 0);
-        assert_eq!((t.lost, t.reordered), (2, 0));
+        t.observe(V2, 255);
+        t.observe(V2, 0);
+        assert_eq!((t.lost, t.reordered), ([0, 2], [0, 0]));
         // A repeat and a late frame.
-        t.observe(1, 0);
-        t.observe(1, 1);
-        t.observe(1, 0);
-        assert_eq!((t.lost, t.reordered), (2, 2));
-        // Components are independent; the first frame of one sets no gap.
-        t.observe(200, 77);
-        t.observe(200, 80);
-        assert_eq!((t.lost, t.reordered), (4, 2));
+        t.observe(V2, 0);
+        t.observe(V2, 1);
+        t.observe(V2, 0);
+        assert_eq!((t.lost, t.reordered), ([0, 2], [0, 2]));
+        // MAVLink 1 frames keep their own numbers: interleaved, neither stream loses any.
+        for k in 0..10_u8 {
+            t.observe(V1, 100 + k);
+            t.observe(V2, 1 + k);
+        }
+        assert_eq!((t.lost, t.reordered), ([0, 2], [0, 2]));
+        t.observe(V1, 120);
+        assert_eq!(t.lost, [10, 2]);
         // After a reboot the sequence restarts without a count.
         t.reset();
-        t.observe(1, 0);
-        assert_eq!((t.lost, t.reordered), (4, 2));
+        t.observe(V2, 0);
+        assert_eq!((t.lost, t.reordered), ([10, 2], [0, 2]));
+    }
+
+    fn hb(mavtype: apm::MavType, autopilot: apm::MavAutopilot) -> apm::HEARTBEAT_DATA {
+        apm::HEARTBEAT_DATA {
+            mavtype,
+            autopilot,
+            ..Default::default()
+        }
+    }
+
+    const S: u64 = 1_000_000;
+
+    #[test]
+    fn the_first_flight_controller_is_kept_and_others_are_refused_while_it_is_heard() {
+        use apm::MavAutopilot as A;
+        use apm::MavType as T;
+        let plane = hb(T::MAV_TYPE_FIXED_WING, A::MAV_AUTOPILOT_PX4);
+        let mut lock = AutopilotLock::new(0, 0, 3 * S);
+        // Before any autopilot: a ground station (also with a filled-in autopilot field, or
+        // left at GENERIC/GENERIC as tools do), a companion, a camera: none is one.
+        for h in [
+            hb(T::MAV_TYPE_GCS, A::MAV_AUTOPILOT_INVALID),
+            hb(T::MAV_TYPE_GCS, A::MAV_AUTOPILOT_ARDUPILOTMEGA),
+            hb(T::MAV_TYPE_GENERIC, A::MAV_AUTOPILOT_GENERIC),
+            hb(T::MAV_TYPE_ONBOARD_CONTROLLER, A::MAV_AUTOPILOT_PX4),
+            hb(T::MAV_TYPE_CAMERA, A::MAV_AUTOPILOT_PX4),
+            hb(T::MAV_TYPE_FIXED_WING, A::MAV_AUTOPILOT_INVALID),
+        ] {
+            assert_eq!(
+                lock.observe(255, 190, Some(&h), 0),
+                (Sender::Unlocked, None)
+            );
+        }
+        assert_eq!(lock.observe(1, 1, None, 0), (Sender::Unlocked, None));
+        assert_eq!(
+            lock.observe(1, 1, Some(&plane), S),
+            (Sender::Autopilot, Some(LockChange::Locked))
+        );
+        // A second flight controller (another system, or another component of this one)
+        // every 0.5 s while the autopilot streams: refused each time.
+        for k in 0..40 {
+            let t = S + k * S / 2;
+            assert_eq!(lock.observe(1, 1, None, t), (Sender::Autopilot, None));
+            assert_eq!(
+                lock.observe(2, 1, Some(&plane), t + 1),
+                (Sender::OtherAutopilot, None)
+            );
+            assert_eq!(lock.observe(1, 191, None, t + 2), (Sender::Foreign, None));
+            assert_eq!(
+                lock.observe(
+                    255,
+                    190,
+                    Some(&hb(T::MAV_TYPE_GCS, A::MAV_AUTOPILOT_INVALID)),
+                    t
+                ),
+                (Sender::Foreign, None)
+            );
+        }
+        assert_eq!(lock.locked(), Some((1, 1)));
+        // The autopilot falls silent (last heard at 20.5 s): after 3 s, and not before, a
+        // flight controller's HEARTBEAT takes over; others' messages never do.
+        let last = S + 39 * S / 2;
+        assert_eq!(
+            lock.observe(2, 1, Some(&plane), last + 3 * S - 1),
+            (Sender::OtherAutopilot, None)
+        );
+        assert_eq!(
+            lock.observe(2, 1, None, last + 4 * S),
+            (Sender::Foreign, None)
+        );
+        assert_eq!(
+            lock.observe(2, 1, Some(&plane), last + 4 * S),
+            (
+                Sender::Autopilot,
+                Some(LockChange::Changed { from: (1, 1) })
+            )
+        );
+        assert_eq!(
+            lock.observe(1, 1, Some(&plane), last + 4 * S + 1).0,
+            Sender::OtherAutopilot
+        );
+    }
+
+    #[test]
+    fn a_configured_autopilot_is_the_only_one_taken() {
+        use apm::MavAutopilot as A;
+        use apm::MavType as T;
+        let plane = hb(T::MAV_TYPE_FIXED_WING, A::MAV_AUTOPILOT_ARDUPILOTMEGA);
+        let mut lock = AutopilotLock::new(7, 1, 3 * S);
+        assert_eq!(
+            lock.observe(1, 1, Some(&plane), 0),
+            (Sender::Unlocked, None)
+        );
+        assert_eq!(
+            lock.observe(7, 2, Some(&plane), 0),
+            (Sender::Unlocked, None)
+        );
+        assert_eq!(
+            lock.observe(7, 1, Some(&plane), 0),
+            (Sender::Autopilot, Some(LockChange::Locked))
+        );
+        // Silent or not, no other autopilot is taken.
+        assert_eq!(
+            lock.observe(1, 1, Some(&plane), 100 * S),
+            (Sender::OtherAutopilot, None)
+        );
+        // Any component of system 7 with component 0.
+        let mut lock = AutopilotLock::new(7, 0, 3 * S);
+        assert_eq!(
+            lock.observe(7, 2, Some(&plane), 0).1,
+            Some(LockChange::Locked)
+        );
     }
 }

@@ -132,14 +132,26 @@ pub struct Counters {
     pub rx_signed_frames: u64,
     /// Frames whose payload did not parse (bad enum value, bad length).
     pub rx_parse_errors: u64,
-    /// Frames missing from the autopilot's sequence numbers: bad CRC, unknown message id,
-    /// refused signature (all dropped silently by the mavlink crate) or lost in transport.
+    /// Frames missing from the autopilot's MAVLink 2 sequence numbers: bad CRC, unknown
+    /// message id, refused signature (all dropped silently by the mavlink crate) or lost in
+    /// transport.
     pub rx_seq_lost: u64,
-    /// Autopilot frames repeated or out of order by sequence number.
+    /// The same in the autopilot's MAVLink 1 frames, numbered apart.
+    pub rx_seq_lost_v1: u64,
+    /// Autopilot MAVLink 2 frames repeated or out of order by sequence number.
     pub rx_seq_reordered: u64,
-    /// Messages from systems other than the autopilot's (or carrying our own component id),
-    /// ignored.
+    /// The same for MAVLink 1 frames.
+    pub rx_seq_reordered_v1: u64,
+    /// Messages from any system or component but the autopilot (or carrying our own component
+    /// id), ignored.
     pub rx_foreign: u64,
+    /// … of which HEARTBEATs.
+    pub rx_foreign_heartbeats: u64,
+    /// … of which another flight controller's HEARTBEATs, refused while the autopilot is
+    /// heard (docs/DAEMON.md "Link ownership").
+    pub rx_foreign_autopilots: u64,
+    /// … of which sensor or clock messages (never decoded).
+    pub rx_foreign_input: u64,
     /// Sensor messages received before the autopilot's HEARTBEAT, ignored.
     pub rx_before_heartbeat: u64,
     /// Link (re)connections.
@@ -166,6 +178,10 @@ pub struct Counters {
     pub autopilot_heartbeats: u64,
     /// Autopilot reboots detected.
     pub autopilot_reboots: u64,
+    /// Forward jumps of the autopilot's clock detected.
+    pub autopilot_time_jumps: u64,
+    /// Changes of the autopilot listened to (the previous one silent for the link timeout).
+    pub autopilot_changes: u64,
     /// Message conversion counters.
     pub input: InputCounters,
     /// Time synchronisation counters.
@@ -226,6 +242,8 @@ pub struct State {
     pub autopilot: Option<(u8, u8, AutopilotKind)>,
     /// Time of the last message from the autopilot, µs.
     pub last_rx_us: Option<u64>,
+    /// The last silence of the autopilot longer than the link timeout, µs.
+    pub last_outage_us: Option<u64>,
     /// Time of the last valid GNSS fix, µs.
     pub last_fix_us: Option<u64>,
     /// Time of validity of the last valid fix, sensor time (the navigation's `t_us`), µs.
@@ -854,10 +872,12 @@ async fn monitor(
             && link_up
             && let Some(t) = link_lost_at.take()
         {
-            let s = (now - t) as f64 / 1e6;
+            // From the last message before the silence to the first after it (measured by the
+            // reader): the loss was only noticed a link timeout after it began.
+            let s = st.last_outage_us.unwrap_or(now.saturating_sub(t)) as f64 / 1e6;
             outbox.status(
                 S::MAV_SEVERITY_NOTICE,
-                &format!("ianav: link restored ({s:.0} s)"),
+                &format!("ianav: link restored ({s:.1} s)"),
             );
             // The autopilot may have restarted meanwhile: ask for the streams again.
             shared.state(|s| s.request_generation += 1);
@@ -947,14 +967,55 @@ async fn monitor(
     }
 }
 
-/// One log line with the counters that matter in operation.
+impl Counters {
+    /// Every input refused, by kind, as `kind=n` for the non-zero ones ("none" otherwise).
+    pub fn rejections(&self) -> String {
+        let (i, t) = (&self.input, &self.timesync);
+        let kinds = [
+            ("parse", self.rx_parse_errors),
+            ("non_finite", i.non_finite),
+            ("out_of_range", i.out_of_range),
+            ("no_fix", i.no_fix),
+            ("unscaled_raw_imu", i.unscaled_raw_imu),
+            ("time_unmapped", i.time),
+            ("no_airspeed", i.no_airspeed),
+            ("airspeed_unhealthy", i.airspeed_unhealthy),
+            ("time_implausible", t.implausible),
+            ("clock_outlier", t.clock_outliers),
+            ("clock_held", t.clock_held),
+            ("time_order", self.time_order_rejected),
+            ("time_repeated", self.time_repeated),
+            ("timesync_rtt", t.rtt_rejected),
+            ("timesync_outlier", t.outliers),
+            ("gnss_echo", self.gnss_echo),
+            ("foreign", self.rx_foreign),
+            ("before_heartbeat", self.rx_before_heartbeat),
+        ];
+        let v: Vec<String> = kinds
+            .iter()
+            .filter(|(_, n)| *n > 0)
+            .map(|(k, n)| format!("{k}={n}"))
+            .collect();
+        if v.is_empty() {
+            "none".to_owned()
+        } else {
+            v.join(" ")
+        }
+    }
+}
+
+/// One log line with the counters that matter in operation (periodically and at exit).
 pub fn log_counters(c: &Counters) {
     tracing::info!(
         rx = c.rx_frames,
         rx_v1 = c.rx_v1_frames,
         parse_err = c.rx_parse_errors,
         seq_lost = c.rx_seq_lost,
+        seq_lost_v1 = c.rx_seq_lost_v1,
         foreign = c.rx_foreign,
+        foreign_hb = c.rx_foreign_heartbeats,
+        foreign_autopilot = c.rx_foreign_autopilots,
+        foreign_input = c.rx_foreign_input,
         imu = c.input.imu,
         air = c.input.air,
         mag = c.input.mag,
@@ -964,6 +1025,8 @@ pub fn log_counters(c: &Counters) {
         repeated = c.time_repeated,
         ts_samples = c.timesync.samples,
         reboots = c.autopilot_reboots,
+        time_jumps = c.autopilot_time_jumps,
+        autopilot_changes = c.autopilot_changes,
         solutions = c.solutions,
         published = c.published,
         withheld = c.publish_withheld,
@@ -980,6 +1043,7 @@ pub fn log_counters(c: &Counters) {
         restarts = c.worker_restarts,
         latency_samples = c.latency_samples,
         latency_max_us = c.latency_max_us,
+        refused = %c.rejections(),
         "counters"
     );
 }
@@ -1000,6 +1064,16 @@ mod tests {
         assert!(!st.is_echo(450_000_010, 10_000_000, 1_000));
         // Forgotten after ECHO_MEMORY newer ones.
         assert!(!st.is_echo(450_000_000, 10_000_000, 2_500));
+    }
+
+    #[test]
+    fn the_counter_line_names_every_refusal_by_kind() {
+        let mut c = Counters::default();
+        assert_eq!(c.rejections(), "none");
+        c.input.out_of_range = 3;
+        c.timesync.clock_outliers = 1;
+        c.rx_foreign = 40;
+        assert_eq!(c.rejections(), "out_of_range=3 clock_outlier=1 foreign=40");
     }
 
     /// The memory bound stated in docs/DAEMON.md: queue capacities × element sizes.

@@ -70,6 +70,18 @@ pub const P_RANGE_PA: (f64, f64) = (1_000.0, 120_000.0);
 pub const T_RANGE_K: (f64, f64) = (183.15, 343.15);
 /// Largest accepted airspeed, m/s.
 pub const MAX_AIRSPEED_MPS: f64 = 150.0;
+/// Largest accepted GNSS ground speed, m/s: the largest airspeed plus a 150 m/s wind.
+pub const MAX_GROUND_SPEED_MPS: f64 = 300.0;
+/// Largest accepted vertical speed (GLOBAL_POSITION_INT `vz`), m/s: the largest airspeed.
+pub const MAX_VERTICAL_SPEED_MPS: f64 = MAX_AIRSPEED_MPS;
+/// Accepted height of a GNSS fix above the ellipsoid, m (below the Dead Sea shore to far above
+/// any fixed wing's ceiling).
+pub const H_RANGE_M: (f64, f64) = (-1_000.0, 50_000.0);
+/// Largest accepted difference between the ellipsoidal and the MSL height of a fix, m (the
+/// geoid lies between −107 m and +86 m).
+pub const MAX_UNDULATION_M: f64 = 200.0;
+/// Slack on the attitude angle ranges (f32 rounding of π), rad.
+pub const ANGLE_SLACK_RAD: f64 = 1e-3;
 /// Airspeed and vane samples older than this are not combined with a pressure sample, µs.
 pub const AIR_MAX_AGE_US: u64 = 500_000;
 /// GLOBAL_POSITION_INT `vz` kept to find the one at a lagged fix's time, µs.
@@ -233,6 +245,27 @@ pub struct InputDecoder {
 
 /// Events decoded from one message (at most IMU + magnetometer + air data).
 pub type Events = Vec<SensorEvent>;
+
+/// Whether the decoder reads this message (sensor data or the autopilot's clock): from any
+/// system but the autopilot such a message is counted and ignored.
+pub fn is_input(msg: &apm::MavMessage) -> bool {
+    use apm::MavMessage as M;
+    matches!(
+        msg,
+        M::HIGHRES_IMU(_)
+            | M::SCALED_IMU(_)
+            | M::RAW_IMU(_)
+            | M::SCALED_PRESSURE(_)
+            | M::SCALED_PRESSURE2(_)
+            | M::AIRSPEED(_)
+            | M::VFR_HUD(_)
+            | M::AOA_SSA(_)
+            | M::ATTITUDE(_)
+            | M::GLOBAL_POSITION_INT(_)
+            | M::GPS_RAW_INT(_)
+            | M::SYSTEM_TIME(_)
+    )
+}
 
 fn finite(v: &[f64]) -> Result<(), Reject> {
     if v.iter().all(|x| x.is_finite()) {
@@ -486,6 +519,15 @@ impl InputDecoder {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
                 let (r, p, y) = (f64::from(m.roll), f64::from(m.pitch), f64::from(m.yaw));
                 finite(&[r, p, y])?;
+                // Roll and yaw in [−π, π] (yaw also [0, 2π] from some senders), pitch in
+                // [−π/2, π/2].
+                use std::f64::consts::{FRAC_PI_2, PI};
+                if r.abs() > PI + ANGLE_SLACK_RAD
+                    || p.abs() > FRAC_PI_2 + ANGLE_SLACK_RAD
+                    || !(-PI - ANGLE_SLACK_RAD..=2.0 * PI + ANGLE_SLACK_RAD).contains(&y)
+                {
+                    return Err(Reject::OutOfRange);
+                }
                 let q_nb = so3::from_euler_zyx(y, p, r);
                 self.attitude = Some(ApAttitude { t_us, q_nb });
                 out.push(SensorEvent::RefAttitude(RefAttitude { t_us, q_nb }));
@@ -493,14 +535,18 @@ impl InputDecoder {
             }
             M::GLOBAL_POSITION_INT(m) => {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
+                let vz_mps = f64::from(m.vz) / 100.0;
+                if vz_mps.abs() > MAX_VERTICAL_SPEED_MPS {
+                    return Err(Reject::OutOfRange);
+                }
                 if self.vz.back().is_some_and(|(t, _)| *t >= t_us) {
                     self.vz.clear();
                 }
-                self.vz.push_back((t_us, f64::from(m.vz) / 100.0));
+                self.vz.push_back((t_us, vz_mps));
                 while self
                     .vz
                     .front()
-                    .is_some_and(|(t, _)| t_us - t > VZ_HISTORY_US)
+                    .is_some_and(|(t, _)| t_us.saturating_sub(*t) > VZ_HISTORY_US)
                 {
                     self.vz.pop_front();
                 }
@@ -608,20 +654,31 @@ impl InputDecoder {
         if m.vel == u16::MAX || m.cog == u16::MAX {
             return Err(Reject::NoFix);
         }
+        // Every field validated before anything is kept; i32 differences widened to f64
+        // (alt_ellipsoid − alt overflows i32 for absurd values).
         let lat_deg = f64::from(m.lat) * 1e-7;
         let lon_deg = f64::from(m.lon) * 1e-7;
-        if lat_deg.abs() >= 90.0 || lon_deg.abs() > 180.0 {
+        let (alt_m, alt_ellipsoid_m) = (f64::from(m.alt) * 1e-3, f64::from(m.alt_ellipsoid) * 1e-3);
+        let speed = f64::from(m.vel) / 100.0;
+        let h_m = if m.alt_ellipsoid != 0 {
+            alt_ellipsoid_m
+        } else {
+            alt_m
+        };
+        if lat_deg.abs() >= 90.0
+            || lon_deg.abs() > 180.0
+            || !(H_RANGE_M.0..=H_RANGE_M.1).contains(&h_m)
+            || (m.alt_ellipsoid != 0 && (alt_ellipsoid_m - alt_m).abs() > MAX_UNDULATION_M)
+            || speed > MAX_GROUND_SPEED_MPS
+            || m.cog > 36_000
+        {
             return Err(Reject::OutOfRange);
         }
-        let h_m = if m.alt_ellipsoid != 0 {
-            // Widened: the difference of two i32 fields overflows i32 for absurd values.
-            self.undulation_m = Some((f64::from(m.alt_ellipsoid) - f64::from(m.alt)) * 1e-3);
-            f64::from(m.alt_ellipsoid) * 1e-3
+        if m.alt_ellipsoid != 0 {
+            self.undulation_m = Some(alt_ellipsoid_m - alt_m);
         } else {
             self.counters.gnss_msl_height += 1;
-            f64::from(m.alt) * 1e-3
-        };
-        let speed = f64::from(m.vel) / 100.0;
+        }
         let cog = (f64::from(m.cog) / 100.0).to_radians();
         let (d_sigma_h, d_sigma_v, d_sigma_vel) = self.cfg.default_sigma;
         let dop_sigma = |dop: u16, default: f64| {
@@ -874,12 +931,12 @@ mod tests {
     }
 
     #[test]
-    fn a_gnss_fix_is_dated_the_receiver_lag_before_its_stamp_and_extreme_heights_do_not_overflow() {
+    fn a_gnss_fix_is_dated_the_receiver_lag_before_its_stamp_and_extreme_heights_are_refused() {
         let mut d = InputDecoder::new(DecoderConfig {
             gnss_lag_us: 120_000,
             ..*decoder().config()
         });
-        let m = apm::GPS_RAW_INT_DATA {
+        let mut m = apm::GPS_RAW_INT_DATA {
             time_usec: 2_000_000,
             fix_type: apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
             lat: 450_000_000,
@@ -890,14 +947,20 @@ mod tests {
             cog: 0,
             ..Default::default()
         };
+        // alt_ellipsoid − alt = 2³² − 1 mm: computed without overflow, and refused.
+        assert!(
+            d.decode(&apm::MavMessage::GPS_RAW_INT(m.clone()), &mut map)
+                .is_empty()
+        );
+        assert_eq!((d.counters().out_of_range, d.undulation_m()), (1, None));
+        m.alt = 452_000;
+        m.alt_ellipsoid = 500_000;
         let ev = d.decode(&apm::MavMessage::GPS_RAW_INT(m), &mut map);
         let SensorEvent::Gnss(fix) = &ev[0] else {
             panic!("{ev:?}")
         };
         assert_eq!(fix.t_us, 1_880_000);
-        // (2³¹ − 1 + 2³¹) mm: computed without wrapping (the INS rejects the height itself).
-        let und = d.undulation_m().unwrap();
-        assert!((und - 4_294_967.295).abs() < 1e-6, "{und}");
+        assert_eq!(d.undulation_m(), Some(48.0));
     }
 
     #[test]
