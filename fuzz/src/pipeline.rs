@@ -31,7 +31,7 @@ use ianav::io::mavlink_in::{
     DecoderConfig, InputCounters, InputDecoder, MAX_ACCEL_MPS2, MAX_GYRO_RPS, MAX_MAG_NT,
     P_RANGE_PA, T_RANGE_K,
 };
-use ianav::io::timesync::{Kind, MonotonicGate, TimeSync};
+use ianav::io::timesync::{ClockStamp, Kind, MonotonicGate, TimeSync};
 use ianav::nav::{NavSolution, Navigator};
 use ianav::sensors::SensorEvent;
 use mavlink::dialects::ardupilotmega as apm;
@@ -488,20 +488,18 @@ impl Pipeline {
             self.stats.foreign += 1;
             return Ok(());
         }
-        let clock_stamp_us = match &msg {
-            M::HIGHRES_IMU(m) => Some(m.time_usec),
-            M::RAW_IMU(m) => Some(m.time_usec),
-            M::SCALED_IMU(m) => Some(u64::from(m.time_boot_ms) * 1_000),
-            M::ATTITUDE(m) => Some(u64::from(m.time_boot_ms) * 1_000),
-            M::SYSTEM_TIME(m) => Some(u64::from(m.time_boot_ms) * 1_000),
-            _ => None,
-        };
-        if let Some(ap_us) = clock_stamp_us
-            && self.ts.observe_clock(ap_us, rx_us)
-        {
-            self.dec.reset();
-            self.recent_imu_us.clear();
-            self.stats.reboots += 1;
+        // As link::handle_raw: a stamp that does not fit the clock (yet) holds the message;
+        // a confirmed reboot or jump resets the decoder.
+        let stamp = ianav::io::timesync::clock_stamp_us(&msg)
+            .map(|ap_us| self.ts.observe_clock(ap_us, rx_us));
+        match stamp {
+            Some(ClockStamp::Held) => return Ok(()),
+            Some(ClockStamp::Reboot | ClockStamp::Jump) => {
+                self.dec.reset();
+                self.recent_imu_us.clear();
+                self.stats.reboots += 1;
+            }
+            Some(ClockStamp::Fits) | None => {}
         }
         if let M::TIMESYNC(t) = &msg {
             self.stats.timesync_replies +=

@@ -48,7 +48,7 @@ pub const INIT_IMU_WINDOW_US: u64 = 1_000_000;
 pub const INIT_FIXES_WITHOUT_VD: u64 = 10;
 
 async fn connect(cfg: &DaemonConfig) -> std::io::Result<Conn> {
-    let mut conn = mavlink::connect_async::<apm::MavMessage>(&cfg.mavlink.connection).await?;
+    let mut conn = super::transport::open(&cfg.mavlink.connection).await?;
     conn.set_allow_recv_any_version(!cfg.mavlink.refuse_unsigned);
     if let Some(key) = cfg.signing_key {
         conn.setup_signing(Some(mavlink::SigningConfig::new(
