@@ -22,6 +22,8 @@ use crate::metrics::{MetricsRecorder, NseSample, format_fixed};
 /// Directory of the per-run files inside a batch directory.
 pub const RUNS_DIR: &str = "runs";
 /// First line of every run file (format name and version).
+/// (Read by hand, not with the `csv` crate: the `# key = value` header lines carry the run's
+/// facts, and the rows are plain numbers.)
 pub const RUN_FILE_MAGIC: &str = "# ianav-sim mc run v1";
 /// Column line of a completed run's samples.
 pub const RUN_COLUMNS: &str =

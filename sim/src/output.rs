@@ -129,6 +129,9 @@ impl RunWriter {
             path: dir.display().to_string(),
             source,
         })?;
+        // The CSV files are written with `write!` rather than the `csv` crate: every field is
+        // a number at a fixed number of decimals or a fixed identifier (nothing to quote or
+        // escape), and the crate would still need each field formatted by hand.
         let mut truth = create(&dir.join(files::TRUTH))?;
         writeln!(truth, "{TRUTH_HEADER}").map_err(|source| OutputError::Io {
             path: dir.join(files::TRUTH).display().to_string(),
