@@ -842,7 +842,7 @@ mod tests {
         assert!(e.starts_with("mavlink.refuse_unsigned"), "{e}");
         let e = error(&MINIMAL.replace("[output]", "signing_key = \"abc\"\n[output]"));
         assert!(e.starts_with("mavlink.signing_key"), "{e}");
-        // Accepted before, then panicked or misbehaved at run time (issue 14).
+        // Accepted before, then panicked or misbehaved at run time.
         let e = error(&MINIMAL.replace("[output]", "timesync_rate_hz = 1e-300\n[output]"));
         assert_eq!(
             e,
