@@ -48,7 +48,8 @@ fn the_issue_14_gps_height_overflow_found_by_the_fuzzer_passes() {
         "50007800c4090000030effffff7fdc050000c40900002c01091c00140000000080e5c1c2bfdf02",
     )));
     let s = assert_pass(&starts, &input);
-    assert_eq!((s.heartbeats, s.events), (1, 1), "{s:?}");
+    // The fix is decoded, or (no clock message yet to map its time) refused and counted.
+    assert_eq!((s.heartbeats, s.events + s.rej_time), (1, 1), "{s:?}");
 }
 
 #[test]
@@ -135,7 +136,9 @@ fn a_short_fixed_seed_run_finds_nothing_new_and_reaches_the_navigation() {
         total.solutions > 1_000 && total.denied_solutions > 0,
         "{total:?}"
     );
-    assert!(total.reboots > 0 && total.reinits > 0, "{total:?}");
+    // A confirmed reboot needs 5 consistent stamps (src/io/timesync.rs): the mutations
+    // rarely make one (3 in 300,000 inputs of seed 2026), so the short run may have none.
+    assert!(total.reinits > 0, "{total:?}");
 }
 
 /// The next IMU message of a flying daemon's stream, stamped `ahead_s` late, as its only input.
@@ -170,13 +173,13 @@ fn lone_late_imu(starts: &Starts, variant: Variant, ahead_s: u64) -> Input {
     }
 }
 
-/// With the daemon's clock a stamp from the future maps to the reception time: one IMU
-/// sample stamped 30 days ahead is one ordinary step.
+/// A lone IMU sample stamped 30 days ahead does not fit the clock: it is held (not decoded,
+/// no solution) and no reboot or jump is taken from it.
 #[test]
-fn a_lone_imu_sample_stamped_30_days_ahead_is_harmless_with_the_daemon_clock() {
+fn a_lone_imu_sample_stamped_30_days_ahead_is_held_with_the_daemon_clock() {
     let starts = starts();
     let s = assert_pass(&starts, &lone_late_imu(&starts, Variant::Px4, 30 * 86_400));
-    assert_eq!(s.solutions, 1, "{s:?}");
+    assert_eq!((s.events, s.solutions, s.reboots), (0, 0, 0), "{s:?}");
 }
 
 /// Fixed finding "latitude out of its domain". With `clock = "autopilot"` the sample's own time
