@@ -185,11 +185,12 @@ pub struct PositionFilterConfig {
     pub gnss_max_consecutive_rejections: u32,
     /// Fixes older than this at the IMU step that consumes them are not fused, s.
     pub gnss_max_lag_s: f64,
-    /// Time constant of the pressure-offset and wind low-pass filters, s (a running mean
-    /// until that much time has passed). Long enough to average out the low-frequency
-    /// turbulence (correlation time `L_u/V` ≈ 18 s) that a 3 s filter would freeze into the
-    /// wind at GNSS loss; docs/INS.md §5.
-    pub lpf_time_constant_s: f64,
+    /// Window of the moving averages that estimate the pressure offset and the wind while
+    /// GNSS is available, s (running means until it is full). It averages out the
+    /// low-frequency turbulence (correlation time `L_u/V` ≈ 18 s) like a first-order filter
+    /// of half its length, and forgets a wind that changed (the climb, the take-off roll)
+    /// after one window; docs/INS.md §5.
+    pub lpf_window_s: f64,
     /// Integral scales of the turbulence along the body axes `[x, y, z]`, m: its correlation
     /// time is `scale / airspeed`. MIL-F-8785C Dryden above 2,000 ft: `L_u = 2 L_v = 2 L_w =
     /// 1,750 ft`; the integral scale of the `u` spectrum is `L_u`, that of `v` and `w` is
@@ -216,7 +217,7 @@ impl Default for PositionFilterConfig {
             gnss_timeout_s: 1.5,
             gnss_max_consecutive_rejections: 5,
             gnss_max_lag_s: 0.5,
-            lpf_time_constant_s: 60.0,
+            lpf_window_s: 120.0,
             turbulence_integral_scale_m: [533.4, 133.35, 133.35],
             gnss_bias_sigma_m: 8.0,
         }
@@ -434,7 +435,7 @@ impl InsConfig {
             ));
         }
         non_negative("position.gnss_max_lag_s", p.gnss_max_lag_s)?;
-        non_negative("position.lpf_time_constant_s", p.lpf_time_constant_s)?;
+        non_negative("position.lpf_window_s", p.lpf_window_s)?;
         for l in p.turbulence_integral_scale_m {
             positive("position.turbulence_integral_scale_m", l)?;
         }

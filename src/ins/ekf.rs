@@ -147,15 +147,97 @@ where
     pub fn value(&self) -> T {
         self.y
     }
+}
 
-    /// Time constant, s.
-    pub fn tau_s(&self) -> f64 {
-        self.tau_s
+/// Moving average over the last `window_s` seconds (± one 1-s bin) of time-weighted inputs (a
+/// running mean of everything until the window is full).
+///
+/// It averages noise like a first-order filter of `window_s/2` (same variance of the mean for
+/// a window much longer than the input's correlation time) but has no memory beyond the
+/// window: an input that changed — the wind through a climb, a take-off roll, a step — is
+/// forgotten entirely one window later, where `LowPass` keeps `e^{−t/T_f}` of it. Bins make the
+/// window end move in 1-s steps; the total is re-summed from the bins when one closes, so no
+/// rounding accumulates over a long flight.
+#[derive(Debug, Clone, PartialEq)]
+pub(crate) struct WindowMean<T> {
+    /// Window length, s.
+    window_s: f64,
+    /// Closed bins, oldest first: (time-weighted sum, duration s).
+    bins: std::collections::VecDeque<(T, f64)>,
+    /// Sum and duration of the closed bins in `bins`.
+    closed: (T, f64),
+    /// The bin being filled.
+    open: (T, f64),
+    /// Output before any input.
+    initial: T,
+    zero: T,
+}
+
+/// Duration of one bin of [`WindowMean`], s.
+const WINDOW_BIN_S: f64 = 1.0;
+
+impl<T> WindowMean<T>
+where
+    T: Copy + std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
+{
+    /// Window of `window_s` (s, ≥ 0; 0 = the latest input) with output `y0` until the first
+    /// input.
+    pub fn new(window_s: f64, y0: T) -> Self {
+        let zero = y0 * 0.0;
+        Self {
+            window_s,
+            bins: std::collections::VecDeque::new(),
+            closed: (zero, 0.0),
+            open: (zero, 0.0),
+            initial: y0,
+            zero,
+        }
     }
 
-    /// Time stepped so far, s.
-    pub fn elapsed_s(&self) -> f64 {
-        self.elapsed_s
+    /// One step of `dt_s` (s, ≥ 0) with input `u`, held over the step.
+    pub fn step(&mut self, u: T, dt_s: f64) {
+        if self.window_s <= 0.0 {
+            // No averaging: the output is the latest input.
+            self.open = (u * dt_s.max(f64::MIN_POSITIVE), dt_s.max(f64::MIN_POSITIVE));
+            return;
+        }
+        self.open.0 = self.open.0 + u * dt_s;
+        self.open.1 += dt_s;
+        if self.open.1 >= WINDOW_BIN_S {
+            self.bins.push_back(self.open);
+            self.open = (self.zero, 0.0);
+            // Keep the newest bins that fit in the window with the next bin.
+            let mut fit = 0.0;
+            let mut keep = 0;
+            for b in self.bins.iter().rev() {
+                if fit + b.1 > self.window_s {
+                    break;
+                }
+                fit += b.1;
+                keep += 1;
+            }
+            let drop = self.bins.len() - keep;
+            self.bins.drain(..drop);
+            self.closed = self
+                .bins
+                .iter()
+                .fold((self.zero, 0.0), |(s, d), b| (s + b.0, d + b.1));
+        }
+    }
+
+    /// Mean over the window (the initial value before any input of non-zero duration).
+    pub fn value(&self) -> T {
+        let d = self.closed.1 + self.open.1;
+        if d > 0.0 {
+            (self.closed.0 + self.open.0) * (1.0 / d)
+        } else {
+            self.initial
+        }
+    }
+
+    /// Time the current mean covers, s (once full, the window ± one bin).
+    pub fn covered_s(&self) -> f64 {
+        self.closed.1 + self.open.1
     }
 }
 
@@ -163,6 +245,63 @@ where
 mod tests {
     use super::*;
     use nalgebra::{Matrix2, Matrix3, Vector2, Vector3};
+
+    #[test]
+    fn window_mean_is_the_running_mean_then_forgets_older_inputs() {
+        let mut w = WindowMean::new(20.0, 7.0);
+        assert_eq!(w.value(), 7.0);
+        // 5 s of 1.0 at 100 Hz, then 5 s of 3.0: the running mean is 2.
+        for _ in 0..500 {
+            w.step(1.0, 0.01);
+        }
+        assert!((w.value() - 1.0).abs() < 1e-12);
+        for _ in 0..500 {
+            w.step(3.0, 0.01);
+        }
+        assert!((w.value() - 2.0).abs() < 1e-9, "{}", w.value());
+        // A step to 5.0: after one window (plus a bin) nothing older remains.
+        for _ in 0..2100 {
+            w.step(5.0, 0.01);
+        }
+        assert!((w.value() - 5.0).abs() < 1e-9, "{}", w.value());
+        let covered = w.covered_s();
+        assert!(
+            (20.0 - WINDOW_BIN_S..=20.0 + WINDOW_BIN_S).contains(&covered),
+            "{covered}"
+        );
+    }
+
+    #[test]
+    fn window_mean_weights_by_duration_and_handles_vectors() {
+        let mut w = WindowMean::new(100.0, Vector3::zeros());
+        w.step(Vector3::new(1.0, 0.0, 0.0), 0.3);
+        w.step(Vector3::new(0.0, 2.0, 0.0), 0.1);
+        let v = w.value();
+        assert!((v - Vector3::new(0.75, 0.5, 0.0)).norm() < 1e-12, "{v}");
+        // Zero window: the latest input.
+        let mut z = WindowMean::new(0.0, 1.0);
+        z.step(4.0, 0.01);
+        z.step(6.0, 0.01);
+        assert_eq!(z.value(), 6.0);
+    }
+
+    #[test]
+    fn window_mean_after_a_step_beats_the_exponential_filter_of_the_same_noise() {
+        // A 120-s window averages noise like a 60-s first-order filter. A 6 m/s step 15 s
+        // after the start: 180 s later the filter still holds 1.5·e^{−135/60} ≈ 0.16 m/s of
+        // the old value (1.5 m/s at 60 s, when its running mean ends), the window nothing.
+        let (mut w, mut lp) = (WindowMean::new(120.0, 0.0), LowPass::new(60.0, 0.0));
+        for _ in 0..1500 {
+            w.step(0.0, 0.01);
+            lp.step(0.0, 0.01);
+        }
+        for _ in 0..18_000 {
+            w.step(6.0, 0.01);
+            lp.step(6.0, 0.01);
+        }
+        assert!((w.value() - 6.0).abs() < 1e-9, "{}", w.value());
+        assert!(6.0 - lp.value() > 0.1, "{}", lp.value());
+    }
 
     #[test]
     fn scalar_update_matches_closed_form() {

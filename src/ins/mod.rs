@@ -631,7 +631,7 @@ impl Ins {
         );
         let wind = gnss.v_n() - v_air;
         let est = GnssPhaseEstimates::new(
-            cfg.position.lpf_time_constant_s,
+            cfg.position.lpf_window_s,
             cfg.position.turbulence_integral_scale_m,
             &att.q_nb(),
             air.state()[air_data::HP],

@@ -32,7 +32,7 @@ use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::air_data;
 use super::config::{AirDataFilterConfig, PositionFilterConfig};
-use super::ekf::{self, LowPass, UpdateRejection};
+use super::ekf::{self, LowPass, UpdateRejection, WindowMean};
 use crate::env::atmosphere::{self, AtmosphereOffsets};
 use crate::math::so3;
 use crate::math::wgs84::{self, Geodetic};
@@ -407,15 +407,15 @@ impl GnssFilter {
 
 /// Low-pass estimates of the pressure offset and the low-frequency wind while GNSS is
 /// available, with their (first-order, low-passed) variances.
-#[derive(Debug, Clone, Copy)]
+#[derive(Debug, Clone)]
 pub(crate) struct GnssPhaseEstimates {
-    delta_p_pa: LowPass<f64>,
-    delta_p_var: LowPass<f64>,
-    wind_n: LowPass<Vector3<f64>>,
-    wind_cov: LowPass<Matrix3<f64>>,
-    /// `C_nb` through the same low-pass as the wind: the attitude at which the wind estimate
+    delta_p_pa: WindowMean<f64>,
+    delta_p_var: WindowMean<f64>,
+    wind_n: WindowMean<Vector3<f64>>,
+    wind_cov: WindowMean<Matrix3<f64>>,
+    /// `C_nb` through the same window as the wind: the attitude at which the wind estimate
     /// absorbed the air-data biases and the turbulence.
-    c_nb: LowPass<Matrix3<f64>>,
+    c_nb: WindowMean<Matrix3<f64>>,
     /// Running mean of the per-body-axis turbulence variance measured from the raw wind's
     /// deviation from its low-pass, (m/s)².
     gust_var_b: LowPass<Vector3<f64>>,
@@ -431,6 +431,42 @@ const GUST_MIN_AVERAGING_S: f64 = 10.0;
 /// at 1 m/s: at rest there is no flight through the field).
 fn gust_tau_s(scale_m: f64, tas_mps: f64) -> f64 {
     scale_m / tas_mps.max(1.0)
+}
+
+/// A unit-variance exponentially correlated gust `g` (correlation time `τ_c`) averaged over
+/// the last `W` seconds, `m = (1/W) ∫ g`, with `r = τ_c/W`, `ε = e^{−1/r}`:
+/// `var m = 2r (1 − r(1 − ε))`, `cov(g_now, m) = r (1 − ε)`, and the deviation of the latest
+/// sample from the mean `var(g_now − m) = 1 − 2 cov + var m = 1 + 2rε − 2r²(1 − ε)`.
+/// (For a first-order filter `τ_f` the first two are both `τ_c/(τ_c + τ_f)`: a window holds
+/// the latest gusts half as strongly as its noise-equivalent filter `τ_f = W/2`.)
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct GustInWindow {
+    pub mean_var: f64,
+    pub cov_with_latest: f64,
+    pub deviation_var: f64,
+}
+
+impl GustInWindow {
+    pub fn new(tau_c_s: f64, window_s: f64) -> Self {
+        let averaging = window_s > 0.0 && tau_c_s > 0.0;
+        if !averaging {
+            // No averaging yet (or a white gust): the mean is the latest sample.
+            return Self {
+                mean_var: if tau_c_s > 0.0 { 1.0 } else { 0.0 },
+                cov_with_latest: if tau_c_s > 0.0 { 1.0 } else { 0.0 },
+                deviation_var: if tau_c_s > 0.0 { 0.0 } else { 1.0 },
+            };
+        }
+        let r = tau_c_s / window_s;
+        let one_minus_eps = -(-1.0 / r).exp_m1();
+        let cov = r * one_minus_eps;
+        let var = 2.0 * r * (1.0 - cov);
+        Self {
+            mean_var: var,
+            cov_with_latest: cov,
+            deviation_var: 1.0 - 2.0 * cov + var,
+        }
+    }
 }
 
 /// Raw pressure offset from the GNSS-filter altitude and its first-order variance.
@@ -455,10 +491,11 @@ fn raw_delta_p(hp_m: f64, var_hp: f64, h_m: f64, var_h: f64, delta_t_k: f64) -> 
 }
 
 impl GnssPhaseEstimates {
-    /// Start both filters at their first raw values (running means until `tau_s`).
+    /// Start both estimates at their first raw values (moving averages over `window_s`,
+    /// running means until the window is full).
     #[allow(clippy::too_many_arguments)]
     pub fn new(
-        tau_s: f64,
+        window_s: f64,
         gust_scale_m: [f64; 3],
         q_nb: &UnitQuaternion<f64>,
         hp_m: f64,
@@ -471,40 +508,27 @@ impl GnssPhaseEstimates {
     ) -> Self {
         let (dp, dp_var) = raw_delta_p(hp_m, var_hp, h_m, var_h, delta_t_k);
         Self {
-            delta_p_pa: LowPass::new(tau_s, dp),
-            delta_p_var: LowPass::new(tau_s, dp_var),
-            wind_n: LowPass::new(tau_s, wind_n),
-            wind_cov: LowPass::new(tau_s, wind_cov),
-            c_nb: LowPass::new(tau_s, q_nb.to_rotation_matrix().into_inner()),
+            delta_p_pa: WindowMean::new(window_s, dp),
+            delta_p_var: WindowMean::new(window_s, dp_var),
+            wind_n: WindowMean::new(window_s, wind_n),
+            wind_cov: WindowMean::new(window_s, wind_cov),
+            c_nb: WindowMean::new(window_s, q_nb.to_rotation_matrix().into_inner()),
             gust_var_b: LowPass::new(f64::INFINITY, Vector3::zeros()),
             gust_scale_m,
         }
     }
 
-    /// Effective time constant of the wind low-pass: while it is still a running mean over
-    /// the elapsed time `W` it averages an exponentially correlated input like a first-order
-    /// filter of `W/2` (same variance of the mean for `W ≫` the correlation time), s.
-    fn wind_tau_s(&self) -> f64 {
-        let tau = self.wind_n.tau_s();
-        let elapsed = self.wind_n.elapsed_s();
-        if elapsed < tau { elapsed / 2.0 } else { tau }
-    }
-
     /// Turbulence seen while GNSS is available: per body axis its variance σ², and the
-    /// fraction `τ_c/(τ_c + τ_f)` of it that the wind low-pass holds (the variance of the
-    /// low-passed gust and its covariance with the current gust, for an exponentially
-    /// correlated gust of correlation time `τ_c` through a first-order filter `τ_f`).
-    pub fn gust(&self, tas_mps: f64) -> (Vector3<f64>, Vector3<f64>) {
-        let tau_f = self.wind_tau_s();
-        let held = Vector3::from_fn(|i, _| {
-            let tau_c = gust_tau_s(self.gust_scale_m[i], tas_mps);
-            if tau_f > 0.0 {
-                tau_c / (tau_c + tau_f)
-            } else {
-                1.0
-            }
-        });
-        (self.gust_var_b.value(), held)
+    /// fractions of it in the wind average at this moment ([`GustInWindow`]).
+    pub fn gust(&self, tas_mps: f64) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
+        let w = self.wind_n.covered_s();
+        let f = |i: usize| GustInWindow::new(gust_tau_s(self.gust_scale_m[i], tas_mps), w);
+        let fr = [f(0), f(1), f(2)];
+        (
+            self.gust_var_b.value(),
+            Vector3::from_fn(|i, _| fr[i].mean_var),
+            Vector3::from_fn(|i, _| fr[i].cov_with_latest),
+        )
     }
 
     /// Low-passed attitude `C_nb` (not orthonormal after turns).
@@ -538,14 +562,14 @@ impl GnssPhaseEstimates {
             self.wind_n.step(wind_n, dt_s);
             self.wind_cov.step(wind_cov, dt_s);
             self.c_nb.step(c_nb, dt_s);
-            // Turbulence: the raw wind's deviation from its low-pass, in body axes, has the
-            // variance σ² τ_f/(τ_c + τ_f) of an exponentially correlated gust.
-            let tau_f = self.wind_tau_s();
-            if self.wind_n.elapsed_s() >= GUST_MIN_AVERAGING_S {
+            // Turbulence: the raw wind's deviation from its average, in body axes, has the
+            // variance σ² · `GustInWindow::deviation_var` of an exponentially correlated gust.
+            let w = self.wind_n.covered_s();
+            if w >= GUST_MIN_AVERAGING_S {
                 let d_b = c_nb.transpose() * (wind_n - self.wind_n.value());
                 let var = Vector3::from_fn(|i, _| {
                     let tau_c = gust_tau_s(self.gust_scale_m[i], tas_mps);
-                    d_b[i] * d_b[i] * (tau_c + tau_f) / tau_f
+                    d_b[i] * d_b[i] / GustInWindow::new(tau_c, w).deviation_var
                 });
                 self.gust_var_b.step(var, dt_s);
             }
@@ -675,13 +699,13 @@ impl DeniedNav {
             .powi(2),
         ));
         let p_bb = j_air * bias_var * j_air.transpose();
-        let (gust_var_b, held) = est.gust(tas);
-        let p_wg = -est.c_nb_lpf() * Matrix3::from_diagonal(&gust_var_b.component_mul(&held));
+        let (gust_var_b, held_var, held_cov) = est.gust(tas);
+        let p_wg = -est.c_nb_lpf() * Matrix3::from_diagonal(&gust_var_b.component_mul(&held_cov));
         let p_wb = -est.c_nb_lpf() * p_bb;
         let c_bar = est.c_nb_lpf();
         let p_ww = wind_cov
             + c_bar
-                * (p_bb + Matrix3::from_diagonal(&gust_var_b.component_mul(&held)))
+                * (p_bb + Matrix3::from_diagonal(&gust_var_b.component_mul(&held_var)))
                 * c_bar.transpose();
         let mut p_dr = SMatrix::<f64, NDR, NDR>::zeros();
         p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P)
@@ -1008,6 +1032,53 @@ mod tests {
         assert!((back - d).norm() < 2e-3, "{back}");
     }
 
+    /// The window fractions of a unit Gauss–Markov gust against many simulated windows
+    /// (the latest sample and the mean of the last `W`, from the stationary start).
+    #[test]
+    fn gust_in_window_fractions_match_simulation() {
+        use rand::{RngExt, SeedableRng};
+        let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
+        let mut normal = move || {
+            let u1: f64 = 1.0 - rng.random::<f64>();
+            let u2: f64 = rng.random::<f64>();
+            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
+        };
+        let (tau_c, w, dt, runs): (f64, f64, f64, u32) = (10.0, 30.0, 0.05, 4000);
+        let a = (-dt / tau_c).exp();
+        let steps = (w / dt) as usize;
+        let (mut s_mm, mut s_gm, mut s_dd) = (0.0, 0.0, 0.0);
+        for _ in 0..runs {
+            let mut g = normal();
+            let mut sum = 0.0;
+            for _ in 0..steps {
+                g = a * g + (1.0 - a * a).sqrt() * normal();
+                sum += g;
+            }
+            let m = sum / steps as f64;
+            s_mm += m * m;
+            s_gm += g * m;
+            s_dd += (g - m) * (g - m);
+        }
+        let n = f64::from(runs);
+        let f = GustInWindow::new(tau_c, w);
+        // Sample second moments of unit-scale Gaussians: standard error ≤ √(2/n); 5 of them.
+        let tol = 5.0 * (2.0 / n).sqrt();
+        for (got, want, what) in [
+            (s_mm / n, f.mean_var, "var m"),
+            (s_gm / n, f.cov_with_latest, "cov(g, m)"),
+            (s_dd / n, f.deviation_var, "var(g − m)"),
+        ] {
+            assert!(
+                (got - want).abs() < tol,
+                "{what}: {got:.4} vs {want:.4} (tol {tol:.3})"
+            );
+        }
+        // Far shorter than the window: the mean holds 2τ_c/W of the variance, the latest
+        // sample τ_c/W of it (a first-order filter of W/2 would hold 2τ_c/W of both).
+        let f = GustInWindow::new(1.0, 1000.0);
+        assert!((f.mean_var - 2e-3).abs() < 1e-5 && (f.cov_with_latest - 1e-3).abs() < 1e-6);
+    }
+
     /// Exponentially correlated (first-order Gauss–Markov) gusts along the body axes fed as
     /// the raw wind: the measured per-axis variance is the gusts' σ².
     #[test]
@@ -1027,7 +1098,7 @@ mod tests {
         let c_nb = q_nb.to_rotation_matrix().into_inner();
         let w0 = Vector3::new(5.0, -3.0, 0.0);
         let mut est = GnssPhaseEstimates::new(
-            cfg.lpf_time_constant_s,
+            cfg.lpf_window_s,
             scale,
             &q_nb,
             2000.0,
@@ -1059,7 +1130,7 @@ mod tests {
                 Matrix3::identity() * 0.01,
             );
         }
-        let (var, held) = est.gust(tas);
+        let (var, held_var, held_cov) = est.gust(tas);
         for i in 0..3 {
             let tau_c = scale[i] / tas;
             // Time average of a squared Gauss–Markov process: relative σ √(2 τ_c / T);
@@ -1072,8 +1143,14 @@ mod tests {
                 var[i],
                 sigma[i] * sigma[i]
             );
-            let expect = tau_c / (tau_c + cfg.lpf_time_constant_s);
-            assert!((held[i] - expect).abs() < 1e-12, "{i}");
+            // The window covers its length ± one 1-s bin; both fractions fall with it.
+            let at = |w: f64| GustInWindow::new(tau_c, w);
+            let (lo, hi) = (at(cfg.lpf_window_s + 1.0), at(cfg.lpf_window_s - 1.0));
+            assert!((lo.mean_var..=hi.mean_var).contains(&held_var[i]), "{i}");
+            assert!(
+                (lo.cov_with_latest..=hi.cov_with_latest).contains(&held_cov[i]),
+                "{i}"
+            );
         }
     }
 
@@ -1089,7 +1166,7 @@ mod tests {
         let mut f = GnssFilter::new(&cfg, &init());
         f.p = SMatrix::zeros();
         let est = GnssPhaseEstimates::new(
-            cfg.lpf_time_constant_s,
+            cfg.lpf_window_s,
             cfg.turbulence_integral_scale_m,
             &UnitQuaternion::identity(),
             2000.0,

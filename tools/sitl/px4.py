@@ -12,7 +12,9 @@ keeps the daemon's output away from PX4.
 Modes: `alone` (no daemon), `open` (daemon runs, its ODOMETRY and origin are not forwarded,
 EKF2_EV_CTRL = 0), `closed` (forwarded and fused by EKF2 as external vision).
 
-Writes flight.csv, summary.toml, error.png (and logs/) into --out. Needs pymavlink, numpy,
+Writes flight.csv, motion.csv (SIH's and the daemon's heading, attitude and velocity: tells
+a heading error from a wind error), summary.toml (with the daemon's wind at its last fix
+before the loss, from its debug log line), error.png (and logs/) into --out. Needs pymavlink, numpy,
 matplotlib. The wind needs SIH_WIND_N / SIH_WIND_E, which SIH v1.16.0 does not have: see
 docs/results/px4/README.md for the local SIH change this harness expects.
 """
@@ -23,6 +25,7 @@ import argparse
 import math
 import os
 import queue
+import re
 import select
 import shutil
 import signal
@@ -142,6 +145,10 @@ class Record:
     truth: list = field(default_factory=list)  # (t_us, lat, lon, alt_m)
     ap: list = field(default_factory=list)  # (t_us, lat, lon, alt_m)
     odom: list = field(default_factory=list)  # (t_us, x, y, z, var_xx, var_yy, wall)
+    # (t_us, qw, qx, qy, qz, v_n, v_e, v_d, tas_mps): SIH's attitude, velocity and airspeed
+    truth_motion: list = field(default_factory=list)
+    # (t_us, qw, qx, qy, qz, vb_x, vb_y, vb_z, yaw_var_rad2)
+    odom_motion: list = field(default_factory=list)
     origin: tuple | None = None  # daemon's SET_GPS_GLOBAL_ORIGIN (lat, lon, alt_m)
     gps_fix: list = field(default_factory=list)  # (t_us, fix_type) from the GCS link
     modes: list = field(default_factory=list)  # (t_us, name, armed)
@@ -272,6 +279,7 @@ class Harness:
                 if name == "ODOMETRY":
                     c = m.pose_covariance
                     self.rec.odom.append((m.time_usec, m.x, m.y, m.z, c[0], c[6], wall))
+                    self.rec.odom_motion.append((m.time_usec, *m.q, m.vx, m.vy, m.vz, c[20]))
                 elif name == "SET_GPS_GLOBAL_ORIGIN":
                     self.rec.origin = (m.latitude * 1e-7, m.longitude * 1e-7, m.altitude * 1e-3)
                 elif name == "COMMAND_LONG" and m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
@@ -296,7 +304,13 @@ class Harness:
         if name != "HIL_STATE_QUATERNION" or self.sih_clock_us == 0:
             return
         row = (self.sih_clock_us, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3)
+        motion = (self.sih_clock_us, *m.attitude_quaternion, m.vx * 0.01, m.vy * 0.01,
+                  m.vz * 0.01, m.true_airspeed * 0.01)
         with self.lock:
+            if self.rec.truth_motion and self.rec.truth_motion[-1][0] == motion[0]:
+                self.rec.truth_motion[-1] = motion
+            else:
+                self.rec.truth_motion.append(motion)
             if self.rec.truth and self.rec.truth[-1][0] == row[0]:
                 self.rec.truth[-1] = row  # two in one 5 ms step: keep the newer
             else:
@@ -418,6 +432,8 @@ class Harness:
             "connection": f"udpin:127.0.0.1:{self.ports.daemon}", "autopilot": "px4",
             "clock": "autopilot"})
         cfg.setdefault("output", {}).update({"mode": "odometry"})
+        if self.args.daemon_log_level:
+            cfg.setdefault("logging", {})["level"] = self.args.daemon_log_level
         nav = cfg.setdefault("navigation", {})
         if nav.get("ins_config"):
             nav["ins_config"] = str((base.parent / nav["ins_config"]).resolve())
@@ -777,8 +793,117 @@ class Harness:
         s["ekf2"] = self.ekf_notes
         s["link"] = self.link_summary()
         (out / "summary.toml").write_text(to_toml(s))
+        wind = self.wind_at_loss(out)
+        if wind:
+            s["ianav_wind_at_loss"] = wind
+        motion = self.write_motion(out, grid, t_ref, post)
+        if motion:
+            s["ianav_motion_after_loss"] = motion
+            (out / "summary.toml").write_text(to_toml(s))
         self.plot(out, t_s, ap_err, ia_err, ia[:, 3], t_loss is not None)
         return s
+
+    def wind_at_loss(self, out):
+        """The daemon's wind estimate at its last fix before the loss (its debug line), against
+        SIH's wind (SIH_WIND_N/E, constant)."""
+        last = None
+        try:
+            text = (Path(out) / "logs" / "ianav.log").read_text(errors="replace")
+        except OSError:
+            return None
+        for line in re.sub(r"\x1b\[[0-9;]*m", "", text).splitlines():
+            if "GNSS fix processed" in line and "denied=false" in line:
+                last = line
+        if last is None:
+            return None
+        got = dict(re.findall(r"(\w+)=([-0-9.e]+)", last))
+        try:
+            wn, we = float(got["wind_n_mps"]), float(got["wind_e_mps"])
+        except (KeyError, ValueError):
+            return None
+        a = self.args
+        tn = -a.wind_mps * math.cos(math.radians(a.wind_from_deg))
+        te = -a.wind_mps * math.sin(math.radians(a.wind_from_deg))
+        return {"ianav_n_mps": round(wn, 2), "ianav_e_mps": round(we, 2),
+                "sih_n_mps": round(tn, 2), "sih_e_mps": round(te, 2),
+                "error_n_mps": round(wn - tn, 2), "error_e_mps": round(we - te, 2)}
+
+    def write_motion(self, out, grid, t_ref, post):
+        """motion.csv: SIH's and the daemon's heading, attitude and NED velocity on the 5 Hz
+        grid, to tell a heading error from a wind or airspeed error after the loss. Returns
+        per-minute means of the daemon's heading and velocity errors after the loss."""
+        import numpy as np
+
+        rec = self.rec
+        if len(rec.truth_motion) < 10 or len(rec.odom_motion) < 10:
+            return None
+        tm = np.array(rec.truth_motion, dtype=float)
+        om = np.array(rec.odom_motion, dtype=float)
+        om = om[np.argsort(om[:, 0], kind="stable")]
+
+        def euler_deg(q):
+            w, x, y, z = q.T
+            roll = np.degrees(np.arctan2(2 * (w * x + y * z), 1 - 2 * (x * x + y * y)))
+            pitch = np.degrees(np.arcsin(np.clip(2 * (w * y - z * x), -1, 1)))
+            yaw = np.degrees(np.arctan2(2 * (w * z + x * y), 1 - 2 * (y * y + z * z)))
+            return roll, pitch, yaw
+
+        def body_to_ned(q, v):
+            w, x, y, z = q.T
+            r = np.array([[1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)],
+                          [2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)],
+                          [2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)]])
+            return np.einsum("ijk,kj->ki", r, v)
+
+        def on_grid(t, cols):
+            keep = np.concatenate([[True], np.diff(t) > 0])
+            t = t[keep]
+            idx = np.clip(np.searchsorted(t, grid), 1, len(t) - 1)
+            ok = (grid >= t[0]) & (grid <= t[-1]) & (t[idx] - t[idx - 1] <= 0.5e6)
+            res = []
+            for c in cols:
+                v = np.interp(grid, t, c[keep])
+                v[~ok] = np.nan
+                res.append(v)
+            return res
+
+        tr_r, tr_p, tr_y = euler_deg(tm[:, 1:5])
+        ia_r, ia_p, ia_y = euler_deg(om[:, 1:5])
+        ia_v = body_to_ned(om[:, 1:5], om[:, 5:8])
+        # Angles are interpolated as unwrapped series, then wrapped again.
+        g_tr = on_grid(tm[:, 0], [np.unwrap(np.radians(tr_y)), tr_r, tr_p, tm[:, 5], tm[:, 6],
+                                  tm[:, 8]])
+        g_ia = on_grid(om[:, 0], [np.unwrap(np.radians(ia_y)), ia_r, ia_p, ia_v[:, 0],
+                                  ia_v[:, 1], np.degrees(np.sqrt(np.maximum(om[:, 8], 0)))])
+        yaw_err = np.degrees(np.angle(np.exp(1j * (g_ia[0] - g_tr[0]))))
+        t_s = (grid - t_ref) / 1e6
+        cols = {
+            "truth_yaw_deg": np.degrees(np.angle(np.exp(1j * g_tr[0]))) % 360,
+            "truth_roll_deg": g_tr[1], "truth_pitch_deg": g_tr[2],
+            "ianav_yaw_err_deg": yaw_err, "ianav_roll_err_deg": g_ia[1] - g_tr[1],
+            "ianav_pitch_err_deg": g_ia[2] - g_tr[2], "ianav_yaw_sigma_deg": g_ia[5],
+            "truth_v_n_mps": g_tr[3], "truth_v_e_mps": g_tr[4],
+            "ianav_v_n_err_mps": g_ia[3] - g_tr[3], "ianav_v_e_err_mps": g_ia[4] - g_tr[4],
+            "truth_tas_mps": g_tr[5],
+        }
+        with open(out / "motion.csv", "w") as f:
+            f.write("t_s," + ",".join(cols) + "\n")
+            for i in range(len(grid)):
+                f.write(f"{t_s[i]:.1f}," + ",".join(
+                    "" if not np.isfinite(c[i]) else f"{c[i]:.3f}" for c in cols.values()) + "\n")
+        minutes = {}
+        for k in range(int(np.nanmax(t_s[post]) // 60) if post.any() else 0):
+            m = post & (t_s >= 60 * k) & (t_s < 60 * (k + 1)) & np.isfinite(yaw_err)
+            if m.sum() < 10:
+                continue
+            minutes[f"min{k}"] = {
+                "yaw_err_mean_deg": round(float(np.mean(yaw_err[m])), 2),
+                "yaw_err_rms_deg": round(float(np.sqrt(np.mean(yaw_err[m] ** 2))), 2),
+                "yaw_sigma_mean_deg": round(float(np.nanmean(g_ia[5][m])), 2),
+                "v_n_err_mean_mps": round(float(np.mean(cols["ianav_v_n_err_mps"][m])), 2),
+                "v_e_err_mean_mps": round(float(np.mean(cols["ianav_v_e_err_mps"][m])), 2),
+            }
+        return minutes
 
     def px4_time_at(self, wall):
         """PX4 µs at a wall time, from the harness's TIMESYNC exchanges (nearest, local slope)."""
@@ -952,6 +1077,8 @@ def main(argv=None):
                          "to PX4, in any mode: isolates what of the daemon's traffic PX4 reacts to")
     ap.add_argument("--ulog", action="store_true",
                     help="PX4 logs from boot (SDLOG_MODE 1); the .ulg files go to OUT/logs/")
+    ap.add_argument("--daemon-log-level", default="info,ianav::daemon::nav_thread=debug",
+                    help="the daemon's logging.level (the default logs its wind at each fix)")
     ap.add_argument("--csv-period-s", type=float, default=0.2, help="flight.csv row period")
     ap.add_argument("--short", action="store_true", help="quick check: 60 s cruise, 120 s denied")
     a = ap.parse_args(argv)

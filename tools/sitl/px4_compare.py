@@ -1,0 +1,105 @@
+#!/usr/bin/env python3
+"""Issue-13 acceptance over repeated PX4 SITL flights (tools/sitl/px4.py output).
+
+usage: px4_compare.py DIR [DIR ...]
+
+Each DIR is one repetition holding `wind<deg>_<mode>/summary.toml` flights (modes `open`,
+`closed`, `alone`). Prints, per wind and checkpoint (1, 2, 5, 10 min after the loss):
+- open loop: ianav's horizontal error against PX4's own estimate in the same flight (PX4
+  ignores the daemon there, so it is PX4 alone on that very trajectory);
+- closed loop: PX4's error with the daemon against PX4 alone, flight by flight in the order
+  the directories are given and as means over the repetitions (PX4's dead reckoning varies
+  about 2x between flights of the same setup, so single pairs are noisy);
+- ianav's consistency: share of post-loss samples within 2.45 x its published accuracy and
+  published-accuracy RMS / error RMS per flight, and both pooled over all flights.
+"""
+
+import sys
+import tomllib
+from pathlib import Path
+
+CHECKPOINTS = (1, 2, 5, 10)
+
+
+def load(dirs):
+    flights = {}  # (wind, mode) -> list of summaries, one per directory
+    for d in dirs:
+        for f in sorted(Path(d).glob("wind*_*/summary.toml")):
+            s = tomllib.loads(f.read_text())
+            if not s.get("completed"):
+                print(f"skipped (not completed): {f.parent}", file=sys.stderr)
+                continue
+            flights.setdefault((s["wind_from_deg"], s["mode"]), []).append(s)
+    return flights
+
+
+def err(s, who, m):
+    return s.get("horizontal_error_after_loss", {}).get(f"{who}_{m}min_m")
+
+
+def fmt(v):
+    return "–" if v is None else f"{v:.0f}"
+
+
+def mean(vals):
+    vals = [v for v in vals if v is not None]
+    return sum(vals) / len(vals) if vals else None
+
+
+def main(dirs):
+    flights = load(dirs)
+    winds = sorted({w for w, _ in flights})
+    total = {"open": [0, 0], "closed_mean": [0, 0], "closed_pair": [0, 0]}
+    print("| wind from | mode | checkpoint | PX4 (alone or same flight) | ianav or PX4 with ianav "
+          "| no worse |")
+    print("|---|---|---|---|---|---|")
+    for w in winds:
+        opens = flights.get((w, "open"), [])
+        for m in CHECKPOINTS:
+            a = [err(s, "ap", m) for s in opens]
+            b = [err(s, "ianav", m) for s in opens]
+            ok = [x is not None and y is not None and y <= x for x, y in zip(a, b)]
+            total["open"][0] += sum(ok)
+            total["open"][1] += len(ok)
+            print(f"| {w:g}° | open | {m} min | {' / '.join(map(fmt, a))} | "
+                  f"{' / '.join(map(fmt, b))} | {sum(ok)} of {len(ok)} |")
+        closed = flights.get((w, "closed"), [])
+        alone = flights.get((w, "alone"), [])
+        for m in CHECKPOINTS:
+            a = [err(s, "ap", m) for s in alone]
+            b = [err(s, "ap", m) for s in closed]
+            pairs = [x is not None and y is not None and y <= x for x, y in zip(a, b)]
+            ma, mb = mean(a), mean(b)
+            ok_mean = ma is not None and mb is not None and mb <= ma
+            total["closed_pair"][0] += sum(pairs)
+            total["closed_pair"][1] += len(pairs)
+            total["closed_mean"][0] += int(ok_mean)
+            total["closed_mean"][1] += 1
+            print(f"| {w:g}° | closed | {m} min | {' / '.join(map(fmt, a))} (mean {fmt(ma)}) | "
+                  f"{' / '.join(map(fmt, b))} (mean {fmt(mb)}) | pairs {sum(pairs)} of "
+                  f"{len(pairs)}, mean {'yes' if ok_mean else 'no'} |")
+    print()
+    for k, (n, d) in total.items():
+        print(f"- {k}: {n} of {d} checkpoints no worse")
+    # Consistency per flight and pooled (weights: samples).
+    fr, rat, n_all, frac_sum = [], [], 0, 0.0
+    for (w, mode), ss in sorted(flights.items()):
+        for s in ss:
+            c = s.get("ianav_consistency")
+            if not c:
+                continue
+            fr.append(c["fraction_err_le_2p45_hacc"])
+            rat.append(c["hacc_rms_over_err_rms"])
+            n_all += c["samples"]
+            frac_sum += c["samples"] * c["fraction_err_le_2p45_hacc"]
+    if fr:
+        print(f"- ianav within 2.45 x hacc: {min(fr):.3f}–{max(fr):.3f} per flight, "
+              f"{frac_sum / n_all:.3f} pooled ({len(fr)} flights)")
+        print(f"- hacc RMS / error RMS: {min(rat):.2f}–{max(rat):.2f} per flight, "
+              f"median {sorted(rat)[len(rat) // 2]:.2f}; over 5: {sum(r > 5 for r in rat)}")
+
+
+if __name__ == "__main__":
+    if len(sys.argv) < 2:
+        sys.exit(__doc__)
+    main(sys.argv[1:])
