@@ -623,9 +623,6 @@ impl Ins {
         );
         let (v_air, v_air_cov) = position::air_velocity_n(
             &att.q_nb(),
-            &att.covariance()
-                .fixed_view::<3, 3>(attitude::TH, attitude::TH)
-                .into_owned(),
             air.state(),
             &air.covariance_without_held_angles(),
         );
@@ -641,6 +638,7 @@ impl Ins {
             air.delta_t_k(),
             wind,
             gnss.velocity_cov() + v_air_cov,
+            v_air,
         );
         let prev = PrevOutputs {
             pos: gnss.pos(),
@@ -721,11 +719,19 @@ fn run_step(
         if since_fix_s > cfg.position.gnss_timeout_s
             || core.consecutive_gated >= cfg.position.gnss_max_consecutive_rejections
         {
+            let c_nb = core.att.q_nb().to_rotation_matrix().into_inner();
+            let att_cov_n = c_nb
+                * core
+                    .att
+                    .covariance()
+                    .fixed_view::<3, 3>(attitude::TH, attitude::TH)
+                * c_nb.transpose();
             core.position = PositionMode::Denied(Box::new(DeniedNav::new(
                 &cfg.position,
                 &cfg.air,
                 core.air.state(),
                 core.air.held_angles(),
+                &att_cov_n,
                 filter,
                 est,
             )));
@@ -784,14 +790,8 @@ fn run_step(
         fuse_ref_attitude(cfg, core, stats, step.t_us, r);
     }
     let q_nb = core.att.q_nb();
-    let p_att: Matrix3<f64> = core
-        .att
-        .covariance()
-        .fixed_view::<3, 3>(attitude::TH, attitude::TH)
-        .into_owned();
     let (v_air, v_air_cov) = position::air_velocity_n(
         &q_nb,
-        &p_att,
         core.air.state(),
         &core.air.covariance_without_held_angles(),
     );
@@ -846,6 +846,7 @@ fn run_step(
                 delta_t_k,
                 filter.v_n() - v_air,
                 filter.velocity_cov() + v_air_cov,
+                v_air,
             );
             core.prev = PrevOutputs {
                 pos: filter.pos(),

@@ -97,12 +97,13 @@ pub(crate) fn v_tas_b(tas_mps: f64, aoa_rad: f64, aos_rad: f64) -> (Vector3<f64>
     (v * tas_mps, j)
 }
 
-/// Air-relative velocity `C_nb v_TAS^b` in NED and its covariance from the attitude covariance
-/// (body tangent, right perturbation) and the air-data covariance (the two filters are
-/// treated as uncorrelated).
+/// Air-relative velocity `C_nb v_TAS^b` in NED and its covariance from the air-data
+/// covariance. The attitude's share is not in it: an attitude error `δθ_b` (right
+/// perturbation, `C = Ĉ Exp(δθ_b)`) moves it by `(Ĉ − C) v = [Ĉ v]× Ĉ δθ_b`, slowly and the same
+/// way for the wind estimate and the dead reckoning, so the dead-reckoning covariance carries
+/// it as the state `δθ_n = Ĉ δθ_b` ([`DeniedNav`]), not as noise.
 pub(crate) fn air_velocity_n(
     q_nb: &UnitQuaternion<f64>,
-    p_att: &Matrix3<f64>,
     air_x: &SVector<f64, { air_data::NX }>,
     air_p: &SMatrix<f64, { air_data::NX }, { air_data::NX }>,
 ) -> (Vector3<f64>, Matrix3<f64>) {
@@ -112,11 +113,9 @@ pub(crate) fn air_velocity_n(
         air_x[air_data::AOS],
     );
     let c_nb = q_nb.to_rotation_matrix().into_inner();
-    // C(q ∘ Exp(δθ)) v = C v + C [δθ]× v = C v − C [v]× δθ.
-    let j_att = -c_nb * so3::skew(&v_b);
     let j_a = c_nb * j_air;
     let p_air = air_p.fixed_view::<3, 3>(air_data::TAS, air_data::TAS);
-    let cov = j_att * p_att * j_att.transpose() + j_a * p_air * j_a.transpose();
+    let cov = j_a * p_air * j_a.transpose();
     (c_nb * v_b, (cov + cov.transpose()) * 0.5)
 }
 
@@ -416,6 +415,9 @@ pub(crate) struct GnssPhaseEstimates {
     /// `C_nb` through the same window as the wind: the attitude at which the wind estimate
     /// absorbed the air-data biases and the turbulence.
     c_nb: WindowMean<Matrix3<f64>>,
+    /// The NED air velocity `C_nb v_TAS^b` through the same window: an attitude error `δθ_n`
+    /// put `−[v̄_air]× δθ_n` into the wind estimate.
+    v_air_n: WindowMean<Vector3<f64>>,
     /// Running mean of the per-body-axis turbulence variance measured from the raw wind's
     /// deviation from its low-pass, (m/s)².
     gust_var_b: LowPass<Vector3<f64>>,
@@ -505,6 +507,7 @@ impl GnssPhaseEstimates {
         delta_t_k: f64,
         wind_n: Vector3<f64>,
         wind_cov: Matrix3<f64>,
+        v_air_n: Vector3<f64>,
     ) -> Self {
         let (dp, dp_var) = raw_delta_p(hp_m, var_hp, h_m, var_h, delta_t_k);
         Self {
@@ -513,6 +516,7 @@ impl GnssPhaseEstimates {
             wind_n: WindowMean::new(window_s, wind_n),
             wind_cov: WindowMean::new(window_s, wind_cov),
             c_nb: WindowMean::new(window_s, q_nb.to_rotation_matrix().into_inner()),
+            v_air_n: WindowMean::new(window_s, v_air_n),
             gust_var_b: LowPass::new(f64::INFINITY, Vector3::zeros()),
             gust_scale_m,
         }
@@ -536,6 +540,11 @@ impl GnssPhaseEstimates {
         self.c_nb.value()
     }
 
+    /// Mean NED air velocity over the wind's window, m/s.
+    pub fn v_air_n_mean(&self) -> Vector3<f64> {
+        self.v_air_n.value()
+    }
+
     /// One step of `dt_s` with the raw inputs. Non-finite raw values are skipped (the filters
     /// hold), so a transient numerical problem cannot poison the frozen values.
     #[allow(clippy::too_many_arguments)]
@@ -551,17 +560,24 @@ impl GnssPhaseEstimates {
         delta_t_k: f64,
         wind_n: Vector3<f64>,
         wind_cov: Matrix3<f64>,
+        v_air_n: Vector3<f64>,
     ) {
         let (dp, dp_var) = raw_delta_p(hp_m, var_hp, h_m, var_h, delta_t_k);
         if dp.is_finite() && dp_var.is_finite() {
             self.delta_p_pa.step(dp, dt_s);
             self.delta_p_var.step(dp_var, dt_s);
         }
-        if wind_n.iter().chain(wind_cov.iter()).all(|v| v.is_finite()) && tas_mps.is_finite() {
+        let finite = wind_n
+            .iter()
+            .chain(wind_cov.iter())
+            .chain(v_air_n.iter())
+            .all(|v| v.is_finite());
+        if finite && tas_mps.is_finite() {
             let c_nb = q_nb.to_rotation_matrix().into_inner();
             self.wind_n.step(wind_n, dt_s);
             self.wind_cov.step(wind_cov, dt_s);
             self.c_nb.step(c_nb, dt_s);
+            self.v_air_n.step(v_air_n, dt_s);
             // Turbulence: the raw wind's deviation from its average, in body axes, has the
             // variance σ² · `GustInWindow::deviation_var` of an exponentially correlated gust.
             let w = self.wind_n.covered_s();
@@ -619,26 +635,31 @@ pub(crate) fn baro_altitude(hp_m: f64, delta_t_k: f64, delta_p_pa: f64) -> (f64,
 }
 
 /// Number of error states of the dead-reckoning covariance.
-const NDR: usize = 12;
-/// Offsets in it: NED position, frozen-wind error, gust (body), air-velocity bias (body).
+const NDR: usize = 15;
+/// Offsets in it: NED position, frozen-wind error, gust (body), air-velocity bias (body),
+/// attitude error (NED).
 const DR_P: usize = 0;
 const DR_W: usize = 3;
 const DR_G: usize = 6;
 const DR_B: usize = 9;
+const DR_A: usize = 12;
 
 /// The GNSS-denied navigation (author_impl §1.7, variant 02B).
 ///
 /// Velocity error model (docs/INS.md "GNSS-denied covariance"): with the estimate
 /// `v̂ = ŵ + Ĉ v̂_air` and the truth `v = w + C (v_air + v_gust)`,
-/// `δv = δw + C (δg + δb) + δv_air`: the frozen-wind error `δw` (a random constant), the gust
-/// the frozen wind cannot follow `δg = −v_gust` (body axes, first-order Gauss–Markov with
-/// the measured intensity and correlation time `L/V`), the air-velocity bias `δb` (Pitot and
-/// vane biases through `∂v_air/∂(V, α, β)`, or without vanes the held angles' errors
-/// `no_vane_angle_sigma_deg`, `no_vane_aos_sigma_deg`; constant in body axes) and the white
-/// remainder
-/// `δv_air` (attitude and air-data filter covariances). `δw` is correlated with `δg` (the
-/// low-pass holds part of the last gusts) and with `δb` (the wind estimate absorbed the
-/// bias at the low-passed attitude `C̄`: `δw ∋ −C̄ δb`).
+/// `δv = δw + C (δg + δb) + [v_air,n]× δθ_n + δv_air`: the frozen-wind error `δw` (a random
+/// constant), the gust the frozen wind cannot follow `δg = −v_gust` (body axes, first-order
+/// Gauss–Markov with the measured intensity and correlation time `L/V`), the air-velocity bias
+/// `δb` (Pitot and vane biases through `∂v_air/∂(V, α, β)`, or without vanes the held angles'
+/// errors `no_vane_angle_sigma_deg`, `no_vane_aos_sigma_deg`; constant in body axes), the
+/// attitude error `δθ_n` (NED, a random constant with the attitude filter's covariance at the
+/// loss: a heading error from the magnetometer's error estimates persists for minutes) and
+/// the white remainder `δv_air` (air-data filter covariance). `δw` is correlated with `δg`
+/// (the window holds part of the last gusts), with `δb` (the wind estimate absorbed the bias at
+/// the averaged attitude `C̄`: `δw ∋ −C̄ δb`) and with `δθ_n` (it absorbed the attitude error at
+/// the averaged air velocity: `δw ∋ −[v̄_air]× δθ_n`, so a heading error costs nothing on the
+/// heading the wind was averaged on and up to `2 V δψ` on the opposite one).
 #[derive(Debug, Clone)]
 pub(crate) struct DeniedNav {
     /// 6-state EKF `[f_ib_b, E_acc]`.
@@ -670,6 +691,7 @@ impl DeniedNav {
         air_cfg: &AirDataFilterConfig,
         air_x: &SVector<f64, { air_data::NX }>,
         held_angles: [bool; 2],
+        att_cov_n: &Matrix3<f64>,
         gnss: &GnssFilter,
         est: &GnssPhaseEstimates,
     ) -> Self {
@@ -703,10 +725,14 @@ impl DeniedNav {
         let p_wg = -est.c_nb_lpf() * Matrix3::from_diagonal(&gust_var_b.component_mul(&held_cov));
         let p_wb = -est.c_nb_lpf() * p_bb;
         let c_bar = est.c_nb_lpf();
+        // Raw wind error ∋ −(Ĉ − C) v_air = −[v_air,n]× δθ_n, averaged over the window.
+        let j_wa = -so3::skew(&est.v_air_n_mean());
+        let p_wa = j_wa * att_cov_n;
         let p_ww = wind_cov
             + c_bar
                 * (p_bb + Matrix3::from_diagonal(&gust_var_b.component_mul(&held_var)))
-                * c_bar.transpose();
+                * c_bar.transpose()
+            + j_wa * att_cov_n * j_wa.transpose();
         let mut p_dr = SMatrix::<f64, NDR, NDR>::zeros();
         p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P)
             .copy_from(&gnss.position_cov_with_bias(cfg));
@@ -720,6 +746,10 @@ impl DeniedNav {
         p_dr.fixed_view_mut::<3, 3>(DR_W, DR_B).copy_from(&p_wb);
         p_dr.fixed_view_mut::<3, 3>(DR_B, DR_W)
             .copy_from(&p_wb.transpose());
+        p_dr.fixed_view_mut::<3, 3>(DR_A, DR_A).copy_from(att_cov_n);
+        p_dr.fixed_view_mut::<3, 3>(DR_W, DR_A).copy_from(&p_wa);
+        p_dr.fixed_view_mut::<3, 3>(DR_A, DR_W)
+            .copy_from(&p_wa.transpose());
         ekf::symmetrize(&mut p_dr);
         Self {
             f_b: gnss.f_b,
@@ -770,7 +800,9 @@ impl DeniedNav {
 
     /// Dead-reckoning step: ground velocity from the frozen wind and the air-relative
     /// velocity, altitude from the barometer, horizontal position integrated over `n_sub`
-    /// sub-steps of `dt_sub_s`; `q_nb` and `tas_mps` map and time the gust and bias errors.
+    /// sub-steps of `dt_sub_s`; `q_nb` and `tas_mps` map and time the gust and bias errors,
+    /// `v_air_n` the attitude error. `v_air_cov` is the white remainder: the air-data part of
+    /// the air velocity's covariance (its attitude part is the `δθ_n` state).
     #[allow(clippy::too_many_arguments)]
     pub fn propagate(
         &mut self,
@@ -822,6 +854,10 @@ impl DeniedNav {
             .copy_from(&(c_nb * dt_sub_s));
         phi.fixed_view_mut::<3, 3>(DR_P, DR_B)
             .copy_from(&(c_nb * dt_sub_s));
+        // (Ĉ − C) v_air = [v_air,n]× δθ_n.
+        let j_va = so3::skew(v_air_n);
+        phi.fixed_view_mut::<3, 3>(DR_P, DR_A)
+            .copy_from(&(j_va * dt_sub_s));
         let add = v_air_cov * (dt_sub_s * dt_sub_s);
         for _ in 0..n_sub {
             let lat = self.pos.lat_rad;
@@ -838,11 +874,12 @@ impl DeniedNav {
             ekf::symmetrize(&mut p_new);
             self.p_dr = p_new;
         }
-        // δv = δw + C (δg + δb) + δv_air.
+        // δv = δw + C (δg + δb) + [v_air,n]× δθ_n + δv_air.
         let mut hv = SMatrix::<f64, 3, NDR>::zeros();
         hv.fixed_view_mut::<3, 3>(0, DR_W).fill_with_identity();
         hv.fixed_view_mut::<3, 3>(0, DR_G).copy_from(&c_nb);
         hv.fixed_view_mut::<3, 3>(0, DR_B).copy_from(&c_nb);
+        hv.fixed_view_mut::<3, 3>(0, DR_A).copy_from(&j_va);
         let v_cov = hv * self.p_dr * hv.transpose() + v_air_cov;
         self.v_cov = (v_cov + v_cov.transpose()) * 0.5;
     }
@@ -896,7 +933,7 @@ impl DeniedNav {
     pub fn accel_cov(&self) -> &SMatrix<f64, 6, 6> {
         &self.p6
     }
-    /// Covariance of `[δp_NED, δw_NED, δg_b, δb_b]` of the dead reckoning (tests).
+    /// Covariance of `[δp_NED, δw_NED, δg_b, δb_b, δθ_n]` of the dead reckoning (tests).
     #[cfg(test)]
     pub fn dead_reckoning_cov(&self) -> &SMatrix<f64, NDR, NDR> {
         &self.p_dr
@@ -972,22 +1009,29 @@ mod tests {
             assert!((fd - j.column(k)).norm() < 1e-8, "{k}");
         }
         assert!((v0.norm() - 30.0).abs() < 1e-12);
-        // Attitude Jacobian of C_nb v_b (right perturbation) through air_velocity_n.
+        // The attitude error of the dead reckoning: (Ĉ − C) v = [Ĉ v]× Ĉ δθ_b for
+        // C = Ĉ Exp(δθ_b), to first order (second order |δθ|²·30/2 ≈ 1.5e-11 m/s).
         let q = so3::from_euler_zyx(1.0, 0.1, 0.3);
+        let c = q.to_rotation_matrix().into_inner();
+        for k in 0..3 {
+            let mut d = Vector3::zeros();
+            d[k] = e;
+            let diff = q * v0 - so3::plus(&q, &d) * v0;
+            let model = so3::skew(&(c * v0)) * (c * d);
+            assert!((diff - model).norm() < 1e-9, "{k}: {diff} vs {model}");
+        }
+        // The air-data part: Jacobian of v_TAS^b rotated to NED.
         let mut x = SVector::<f64, { air_data::NX }>::zeros();
         x[air_data::TAS] = 30.0;
         x[air_data::AOA] = 0.06;
         x[air_data::AOS] = -0.03;
-        let p_air = SMatrix::<f64, { air_data::NX }, { air_data::NX }>::zeros();
-        for k in 0..3 {
-            let mut d = Vector3::zeros();
-            d[k] = 1.0;
-            let p_att = d * d.transpose();
-            let (_, cov) = air_velocity_n(&q, &p_att, &x, &p_air);
-            let fd = (so3::plus(&q, &(d * e)) * v0 - so3::plus(&q, &(-d * e)) * v0) / (2.0 * e);
-            // cov = J e_k e_kᵀ Jᵀ = col·colᵀ.
-            assert!((cov - fd * fd.transpose()).norm() < 1e-6, "{k}");
-        }
+        let mut p_air = SMatrix::<f64, { air_data::NX }, { air_data::NX }>::zeros();
+        p_air[(air_data::TAS, air_data::TAS)] = 0.04;
+        let (v_n, cov) = air_velocity_n(&q, &x, &p_air);
+        let (vb, jb) = v_tas_b(30.0, 0.06, -0.03);
+        assert!((v_n - c * vb).norm() < 1e-12);
+        let col = c * jb.column(0);
+        assert!((cov - col * col.transpose() * 0.04).norm() < 1e-12);
     }
 
     #[test]
@@ -1108,6 +1152,7 @@ mod tests {
             5.0,
             w0,
             Matrix3::identity() * 0.01,
+            c_nb * Vector3::new(tas, 0.0, 0.0),
         );
         let a = Vector3::from_fn(|i, _| (-dt * tas / scale[i]).exp());
         let mut g = Vector3::from_fn(|i, _| sigma[i] * normal());
@@ -1128,6 +1173,7 @@ mod tests {
                 5.0,
                 wind,
                 Matrix3::identity() * 0.01,
+                c_nb * Vector3::new(tas, 0.0, 0.0),
             );
         }
         let (var, held_var, held_cov) = est.gust(tas);
@@ -1176,6 +1222,7 @@ mod tests {
             5.0,
             Vector3::zeros(),
             Matrix3::zeros(),
+            Vector3::new(30.0, 0.0, 0.0),
         );
         let air_cfg = AirDataFilterConfig {
             tas_bias_sigma_mps: 0.0,
@@ -1185,7 +1232,15 @@ mod tests {
         };
         let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
         air_x[air_data::TAS] = 30.0;
-        let mut nav = DeniedNav::new(&cfg, &air_cfg, &air_x, [false; 2], &f, &est);
+        let mut nav = DeniedNav::new(
+            &cfg,
+            &air_cfg,
+            &air_x,
+            [false; 2],
+            &Matrix3::zeros(),
+            &f,
+            &est,
+        );
         let sigma2 = Vector3::new(0.81, 0.36, 0.25);
         nav.gust_var_b = sigma2;
         nav.p_dr = SMatrix::zeros();
@@ -1232,6 +1287,100 @@ mod tests {
         assert!((v[(1, 1)] / sigma2.x - 1.0).abs() < 1e-9, "{}", v[(1, 1)]);
         assert!((v[(0, 0)] / sigma2.y - 1.0).abs() < 1e-9, "{}", v[(0, 0)]);
         assert!((v[(2, 2)] / sigma2.z - 1.0).abs() < 1e-9, "{}", v[(2, 2)]);
+    }
+
+    /// A heading error present while the wind was averaged (wind estimated on a northbound
+    /// leg at 30 m/s) cancels on that heading and doubles on the reverse one: velocity σ east
+    /// 2·30 m/s·σ_ψ, position σ growing linearly with it.
+    #[test]
+    fn a_heading_error_absorbed_by_the_wind_cancels_on_its_heading_and_doubles_reversed() {
+        let cfg = PositionFilterConfig {
+            q_position_m2: 0.0,
+            ..PositionFilterConfig::default()
+        };
+        let mut f = GnssFilter::new(&cfg, &init());
+        f.p = SMatrix::zeros();
+        let north = Vector3::new(30.0, 0.0, 0.0);
+        let mut est = GnssPhaseEstimates::new(
+            cfg.lpf_window_s,
+            cfg.turbulence_integral_scale_m,
+            &UnitQuaternion::identity(),
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            Vector3::zeros(),
+            Matrix3::zeros(),
+            north,
+        );
+        let q_north = UnitQuaternion::identity();
+        for _ in 0..1500 {
+            est.step(
+                0.1,
+                &q_north,
+                30.0,
+                2000.0,
+                1.0,
+                2100.0,
+                1.0,
+                5.0,
+                Vector3::zeros(),
+                Matrix3::zeros(),
+                north,
+            );
+        }
+        let air_cfg = AirDataFilterConfig {
+            tas_bias_sigma_mps: 0.0,
+            aoa_bias_sigma_deg: 0.0,
+            aos_bias_sigma_deg: 0.0,
+            ..AirDataFilterConfig::default()
+        };
+        let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
+        air_x[air_data::TAS] = 30.0;
+        let sigma_psi = 1f64.to_radians();
+        let att_cov_n = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, sigma_psi.powi(2)));
+        let fly = |q: UnitQuaternion<f64>, v_air: Vector3<f64>| {
+            let mut nav = DeniedNav::new(&cfg, &air_cfg, &air_x, [false; 2], &att_cov_n, &f, &est);
+            nav.gust_var_b = Vector3::zeros();
+            nav.p_dr.fixed_view_mut::<3, 3>(DR_G, DR_G).fill(0.0);
+            nav.p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P).fill(0.0);
+            for _ in 0..1000 {
+                nav.propagate(
+                    &cfg,
+                    &q,
+                    30.0,
+                    &v_air,
+                    &Matrix3::zeros(),
+                    2000.0,
+                    5.0,
+                    &nalgebra::Matrix2::identity(),
+                    0.1,
+                    1,
+                    1.0,
+                );
+            }
+            (nav.velocity_cov(), nav.position_cov())
+        };
+        let (v, p) = fly(q_north, north);
+        assert!(
+            v.norm() < 1e-9 && p.fixed_view::<2, 2>(0, 0).norm() < 1e-6,
+            "{v} {p}"
+        );
+        let south = so3::from_euler_zyx(std::f64::consts::PI, 0.0, 0.0);
+        let (v, p) = fly(south, -north);
+        let sv = 2.0 * 30.0 * sigma_psi;
+        assert!(
+            (v[(1, 1)].sqrt() / sv - 1.0).abs() < 1e-9,
+            "{}",
+            v[(1, 1)].sqrt()
+        );
+        assert!(v[(0, 0)].abs() < 1e-9);
+        assert!(
+            (p[(1, 1)].sqrt() / (sv * 100.0) - 1.0).abs() < 1e-9,
+            "{}",
+            p[(1, 1)].sqrt()
+        );
     }
 
     /// A fix 0.1 s old in a 0.74 rad/s level turn at 30 m/s (2.3 g): moved forward with the
