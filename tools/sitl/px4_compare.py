@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Issue-13 acceptance over repeated PX4 SITL flights (tools/sitl/px4.py output).
+"""Acceptance checks over repeated PX4 SITL flights (tools/sitl/px4.py output).
 
 usage: px4_compare.py DIR [DIR ...]
 
