@@ -1080,13 +1080,9 @@ mod tests {
     /// (the latest sample and the mean of the last `W`, from the stationary start).
     #[test]
     fn gust_in_window_fractions_match_simulation() {
-        use rand::{RngExt, SeedableRng};
+        use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(11);
-        let mut normal = move || {
-            let u1: f64 = 1.0 - rng.random::<f64>();
-            let u2: f64 = rng.random::<f64>();
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        };
+        let mut normal = move || crate::ins::tests::standard_normal(&mut rng);
         let (tau_c, w, dt, runs): (f64, f64, f64, u32) = (10.0, 30.0, 0.05, 4000);
         let a = (-dt / tau_c).exp();
         let steps = (w / dt) as usize;
@@ -1127,13 +1123,9 @@ mod tests {
     /// the raw wind: the measured per-axis variance is the gusts' σ².
     #[test]
     fn gust_intensity_is_measured_from_the_raw_wind() {
-        use rand::{RngExt, SeedableRng};
+        use rand::SeedableRng;
         let mut rng = rand_chacha::ChaCha8Rng::seed_from_u64(7);
-        let mut normal = move || {
-            let u1: f64 = 1.0 - rng.random::<f64>();
-            let u2: f64 = rng.random::<f64>();
-            (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
-        };
+        let mut normal = move || crate::ins::tests::standard_normal(&mut rng);
         let cfg = PositionFilterConfig::default();
         let scale = cfg.turbulence_integral_scale_m;
         let (tas, dt, t_end) = (30.0, 0.05, 20_000.0);
@@ -1200,18 +1192,34 @@ mod tests {
         }
     }
 
-    /// With only the gust uncertain, the dead-reckoning position variance along a straight
-    /// leg is that of an integrated Gauss–Markov process, `2σ²τ (T − τ (1 − e^{−T/τ}))`, and
-    /// the velocity variance stays σ².
-    #[test]
-    fn dead_reckoning_integrates_the_gust_as_a_gauss_markov_process() {
+    /// A GNSS filter with zero covariance, the air-data bias σ's zeroed and a 30 m/s air
+    /// state: the dead-reckoning tests switch on one error source at a time.
+    fn denied_setup() -> (
+        PositionFilterConfig,
+        AirDataFilterConfig,
+        SVector<f64, { air_data::NX }>,
+        GnssFilter,
+    ) {
         let cfg = PositionFilterConfig {
             q_position_m2: 0.0,
             ..PositionFilterConfig::default()
         };
         let mut f = GnssFilter::new(&cfg, &init());
         f.p = SMatrix::zeros();
-        let est = GnssPhaseEstimates::new(
+        let air_cfg = AirDataFilterConfig {
+            tas_bias_sigma_mps: 0.0,
+            aoa_bias_sigma_deg: 0.0,
+            aos_bias_sigma_deg: 0.0,
+            ..AirDataFilterConfig::default()
+        };
+        let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
+        air_x[air_data::TAS] = 30.0;
+        (cfg, air_cfg, air_x, f)
+    }
+
+    /// GNSS-phase estimates of a calm wind, started with the NED air velocity `v_air_n`.
+    fn calm_estimates(cfg: &PositionFilterConfig, v_air_n: Vector3<f64>) -> GnssPhaseEstimates {
+        GnssPhaseEstimates::new(
             cfg.lpf_window_s,
             cfg.turbulence_integral_scale_m,
             &UnitQuaternion::identity(),
@@ -1222,16 +1230,44 @@ mod tests {
             5.0,
             Vector3::zeros(),
             Matrix3::zeros(),
-            Vector3::new(30.0, 0.0, 0.0),
-        );
-        let air_cfg = AirDataFilterConfig {
-            tas_bias_sigma_mps: 0.0,
-            aoa_bias_sigma_deg: 0.0,
-            aos_bias_sigma_deg: 0.0,
-            ..AirDataFilterConfig::default()
-        };
-        let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
-        air_x[air_data::TAS] = 30.0;
+            v_air_n,
+        )
+    }
+
+    /// `n` dead-reckoning steps of `dt_s` at 30 m/s with attitude `q_nb`, air velocity
+    /// `v_air_n` and no air-data noise.
+    fn propagate_steps(
+        nav: &mut DeniedNav,
+        cfg: &PositionFilterConfig,
+        q_nb: &UnitQuaternion<f64>,
+        v_air_n: &Vector3<f64>,
+        dt_s: f64,
+        n: usize,
+    ) {
+        for _ in 0..n {
+            nav.propagate(
+                cfg,
+                q_nb,
+                30.0,
+                v_air_n,
+                &Matrix3::zeros(),
+                2000.0,
+                5.0,
+                &nalgebra::Matrix2::identity(),
+                dt_s,
+                1,
+                1.0,
+            );
+        }
+    }
+
+    /// With only the gust uncertain, the dead-reckoning position variance along a straight
+    /// leg is that of an integrated Gauss–Markov process, `2σ²τ (T − τ (1 − e^{−T/τ}))`, and
+    /// the velocity variance stays σ².
+    #[test]
+    fn dead_reckoning_integrates_the_gust_as_a_gauss_markov_process() {
+        let (cfg, air_cfg, air_x, f) = denied_setup();
+        let est = calm_estimates(&cfg, Vector3::new(30.0, 0.0, 0.0));
         let mut nav = DeniedNav::new(
             &cfg,
             &air_cfg,
@@ -1250,21 +1286,8 @@ mod tests {
         // Heading 90°: body x is east, body y is south.
         let q_nb = so3::from_euler_zyx(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
         let (dt, t_end) = (0.01, 200.0);
-        for _ in 0..(t_end / dt) as usize {
-            nav.propagate(
-                &cfg,
-                &q_nb,
-                30.0,
-                &Vector3::new(0.0, 30.0, 0.0),
-                &Matrix3::zeros(),
-                2000.0,
-                5.0,
-                &nalgebra::Matrix2::identity(),
-                dt,
-                1,
-                1.0,
-            );
-        }
+        let east_air = Vector3::new(0.0, 30.0, 0.0);
+        propagate_steps(&mut nav, &cfg, &q_nb, &east_air, dt, (t_end / dt) as usize);
         let p = nav.position_cov();
         let gm = |s2: f64, tau: f64| 2.0 * s2 * tau * (t_end - tau * (1.0 - (-t_end / tau).exp()));
         let scale = cfg.turbulence_integral_scale_m;
@@ -1294,26 +1317,9 @@ mod tests {
     /// 2·30 m/s·σ_ψ, position σ growing linearly with it.
     #[test]
     fn a_heading_error_absorbed_by_the_wind_cancels_on_its_heading_and_doubles_reversed() {
-        let cfg = PositionFilterConfig {
-            q_position_m2: 0.0,
-            ..PositionFilterConfig::default()
-        };
-        let mut f = GnssFilter::new(&cfg, &init());
-        f.p = SMatrix::zeros();
+        let (cfg, air_cfg, air_x, f) = denied_setup();
         let north = Vector3::new(30.0, 0.0, 0.0);
-        let mut est = GnssPhaseEstimates::new(
-            cfg.lpf_window_s,
-            cfg.turbulence_integral_scale_m,
-            &UnitQuaternion::identity(),
-            2000.0,
-            1.0,
-            2100.0,
-            1.0,
-            5.0,
-            Vector3::zeros(),
-            Matrix3::zeros(),
-            north,
-        );
+        let mut est = calm_estimates(&cfg, north);
         let q_north = UnitQuaternion::identity();
         for _ in 0..1500 {
             est.step(
@@ -1330,14 +1336,6 @@ mod tests {
                 north,
             );
         }
-        let air_cfg = AirDataFilterConfig {
-            tas_bias_sigma_mps: 0.0,
-            aoa_bias_sigma_deg: 0.0,
-            aos_bias_sigma_deg: 0.0,
-            ..AirDataFilterConfig::default()
-        };
-        let mut air_x = SVector::<f64, { air_data::NX }>::zeros();
-        air_x[air_data::TAS] = 30.0;
         let sigma_psi = 1f64.to_radians();
         let att_cov_n = Matrix3::from_diagonal(&Vector3::new(0.0, 0.0, sigma_psi.powi(2)));
         let fly = |q: UnitQuaternion<f64>, v_air: Vector3<f64>| {
@@ -1345,21 +1343,7 @@ mod tests {
             nav.gust_var_b = Vector3::zeros();
             nav.p_dr.fixed_view_mut::<3, 3>(DR_G, DR_G).fill(0.0);
             nav.p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P).fill(0.0);
-            for _ in 0..1000 {
-                nav.propagate(
-                    &cfg,
-                    &q,
-                    30.0,
-                    &v_air,
-                    &Matrix3::zeros(),
-                    2000.0,
-                    5.0,
-                    &nalgebra::Matrix2::identity(),
-                    0.1,
-                    1,
-                    1.0,
-                );
-            }
+            propagate_steps(&mut nav, &cfg, &q, &v_air, 0.1, 1000);
             (nav.velocity_cov(), nav.position_cov())
         };
         let (v, p) = fly(q_north, north);

@@ -40,8 +40,8 @@ const GNSS_VEL: f64 = 0.0741;
 /// Decimal year of the magnetic model.
 const YEAR: f64 = 2026.0;
 
-/// One N(0, 1) draw (Box–Muller).
-fn standard_normal(rng: &mut ChaCha8Rng) -> f64 {
+/// One N(0, 1) draw (Box–Muller); the INS's unit tests share it.
+pub(crate) fn standard_normal(rng: &mut ChaCha8Rng) -> f64 {
     let u1: f64 = 1.0 - rng.random::<f64>();
     let u2: f64 = rng.random::<f64>();
     (-2.0 * u1.ln()).sqrt() * (std::f64::consts::TAU * u2).cos()
