@@ -149,6 +149,8 @@ class Record:
     truth_motion: list = field(default_factory=list)
     # (t_us, qw, qx, qy, qz, vb_x, vb_y, vb_z, yaw_var_rad2)
     odom_motion: list = field(default_factory=list)
+    # (t_us, qw, qx, qy, qz): PX4's own attitude (ATTITUDE_QUATERNION on the onboard link)
+    ap_motion: list = field(default_factory=list)
     origin: tuple | None = None  # daemon's SET_GPS_GLOBAL_ORIGIN (lat, lon, alt_m)
     gps_fix: list = field(default_factory=list)  # (t_us, fix_type) from the GCS link
     modes: list = field(default_factory=list)  # (t_us, name, armed)
@@ -260,7 +262,9 @@ class Harness:
                 st = STAMPS.get(name)
                 stamp = getattr(m, st[0]) * st[1] if st else None
                 self.rec.to_daemon.setdefault(name, []).append((wall, stamp))
-                if name == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
+                if name == "ATTITUDE_QUATERNION":
+                    self.rec.ap_motion.append((m.time_boot_ms * 1000, m.q1, m.q2, m.q3, m.q4))
+                elif name == "COMMAND_ACK" and m.command == mavlink.MAV_CMD_SET_MESSAGE_INTERVAL:
                     self.rec.interval_acks.append((wall, int(m.result)))
                 elif name == "STATUSTEXT":
                     self.rec.statustext.append((self.latest_t_us, "onboard", m.text))
@@ -876,6 +880,16 @@ class Harness:
         g_ia = on_grid(om[:, 0], [np.unwrap(np.radians(ia_y)), ia_r, ia_p, ia_v[:, 0],
                                   ia_v[:, 1], np.degrees(np.sqrt(np.maximum(om[:, 8], 0)))])
         yaw_err = np.degrees(np.angle(np.exp(1j * (g_ia[0] - g_tr[0]))))
+        # PX4's own attitude: the daemon aligns to it while GNSS is available.
+        nan = np.full(len(grid), np.nan)
+        px4_yaw_err, px4_roll_err, px4_pitch_err = nan, nan, nan
+        if len(rec.ap_motion) >= 10:
+            am = np.array(rec.ap_motion, dtype=float)
+            am = am[np.argsort(am[:, 0], kind="stable")]
+            ap_r, ap_p, ap_y = euler_deg(am[:, 1:5])
+            g_ap = on_grid(am[:, 0], [np.unwrap(np.radians(ap_y)), ap_r, ap_p])
+            px4_yaw_err = np.degrees(np.angle(np.exp(1j * (g_ap[0] - g_tr[0]))))
+            px4_roll_err, px4_pitch_err = g_ap[1] - g_tr[1], g_ap[2] - g_tr[2]
         t_s = (grid - t_ref) / 1e6
         cols = {
             "truth_yaw_deg": np.degrees(np.angle(np.exp(1j * g_tr[0]))) % 360,
@@ -885,6 +899,8 @@ class Harness:
             "truth_v_n_mps": g_tr[3], "truth_v_e_mps": g_tr[4],
             "ianav_v_n_err_mps": g_ia[3] - g_tr[3], "ianav_v_e_err_mps": g_ia[4] - g_tr[4],
             "truth_tas_mps": g_tr[5],
+            "px4_yaw_err_deg": px4_yaw_err, "px4_roll_err_deg": px4_roll_err,
+            "px4_pitch_err_deg": px4_pitch_err,
         }
         with open(out / "motion.csv", "w") as f:
             f.write("t_s," + ",".join(cols) + "\n")
