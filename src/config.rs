@@ -136,6 +136,20 @@ pub enum AoaSsaUse {
     Vanes,
 }
 
+/// Which message carries the magnetometer.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum MagnetometerSource {
+    /// The IMU message's magnetometer fields (default): HIGHRES_IMU on PX4, SCALED_IMU on
+    /// ArduPilot.
+    Imu,
+    /// SCALED_IMU, requested besides the IMU message: the sensor's field. PX4's HIGHRES_IMU
+    /// subtracts EKF2's current magnetometer-bias estimate, which wanders by hundreds of nT
+    /// (beside SIH 1,050–1,750 nT after take-off, 30–410 nT three minutes later; 375 nT is a
+    /// degree of heading) and would be taken for the INS's own magnetometer error.
+    ScaledImu,
+}
+
 /// `[mavlink]`: the link to the autopilot.
 #[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -241,6 +255,13 @@ pub struct InputConfig {
     /// times. 0: never (a daemon started in flight starts its INS once, at the first fix).
     #[serde(default = "default_start_airspeed_mps")]
     pub start_airspeed_mps: f64,
+    /// Which message the magnetometer is taken from.
+    #[serde(default = "default_magnetometer")]
+    pub magnetometer: MagnetometerSource,
+}
+
+fn default_magnetometer() -> MagnetometerSource {
+    MagnetometerSource::Imu
 }
 
 fn default_start_airspeed_mps() -> f64 {
@@ -283,6 +304,7 @@ impl Default for InputConfig {
             aoa_ssa: default_aoa_ssa(),
             gnss_lag_s: 0.0,
             start_airspeed_mps: default_start_airspeed_mps(),
+            magnetometer: default_magnetometer(),
         }
     }
 }

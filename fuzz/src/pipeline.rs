@@ -343,6 +343,8 @@ impl Pipeline {
             default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
             aoa_ssa_is_vanes: cfg.input.aoa_ssa == AoaSsaUse::Vanes,
             gnss_lag_us: (cfg.input.gnss_lag_s * 1e6).round() as u64,
+            mag_from_scaled_imu: cfg.input.magnetometer
+                == ianav::config::MagnetometerSource::ScaledImu,
         });
         let nav = Navigator::new(&cfg.ins)?;
         Ok(Self {
@@ -687,6 +689,7 @@ impl Pipeline {
                 c.gnss_msl_height,
                 c.gnss_no_vd,
                 c.imu_lower_priority,
+                c.highres_mag_ignored,
             ]
         };
         let (b, a) = (fields(before), fields(after));

@@ -27,7 +27,7 @@ use tokio::sync::{mpsc, watch};
 use super::health::MIN_IMU_RATE_HZ;
 use super::nav_thread::NavInput;
 use super::{Clock, Outbox, Shared, stopped_after};
-use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig};
+use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig, MagnetometerSource};
 use crate::ins::InsInit;
 use crate::io::mavlink_in::{self, DecoderConfig, InputDecoder};
 use crate::io::mavlink_out;
@@ -351,6 +351,7 @@ pub(super) async fn reader(
             default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
             aoa_ssa_is_vanes: cfg.input.aoa_ssa == AoaSsaUse::Vanes,
             gnss_lag_us: (cfg.input.gnss_lag_s * 1e6).round() as u64,
+            mag_from_scaled_imu: cfg.input.magnetometer == MagnetometerSource::ScaledImu,
         }),
         gate: MonotonicGate::default(),
         seq: SequenceTracker::default(),
@@ -748,6 +749,9 @@ pub fn requested_streams(cfg: &DaemonConfig, kind: AutopilotKind) -> Vec<(u32, f
     };
     if i.aoa_ssa == AoaSsaUse::Vanes {
         v.push((apm::AOA_SSA_DATA::ID, i.air_rate_hz));
+    }
+    if i.magnetometer == MagnetometerSource::ScaledImu && kind != AutopilotKind::Ardupilot {
+        v.push((apm::SCALED_IMU_DATA::ID, i.air_rate_hz));
     }
     v.extend([
         (apm::SCALED_PRESSURE_DATA::ID, i.air_rate_hz),

@@ -165,6 +165,8 @@ pub struct InputCounters {
     pub gnss_no_vd: u64,
     /// IMU messages ignored because a higher-priority IMU message type is streaming.
     pub imu_lower_priority: u64,
+    /// HIGHRES_IMU magnetometer samples ignored: the magnetometer is taken from SCALED_IMU.
+    pub highres_mag_ignored: u64,
 }
 
 impl InputCounters {
@@ -216,6 +218,10 @@ pub struct DecoderConfig {
     pub aoa_ssa_is_vanes: bool,
     /// Receiver lag: a fix is dated this long before its stamp, µs.
     pub gnss_lag_us: u64,
+    /// Take the magnetometer from SCALED_IMU only, whatever message carries the IMU: PX4's
+    /// HIGHRES_IMU subtracts its EKF's current magnetometer-bias estimate, which wanders by
+    /// hundreds of nT (degrees of heading); SCALED_IMU carries the sensor's field.
+    pub mag_from_scaled_imu: bool,
 }
 
 /// Stateful converter (keeps the latest airspeed, vanes, vertical speed and attitude).
@@ -417,7 +423,9 @@ impl InputDecoder {
                         accel_mps2: accel,
                     }));
                 }
-                if has(0x01c0) {
+                if has(0x01c0) && self.cfg.mag_from_scaled_imu {
+                    self.counters.highres_mag_ignored += 1;
+                } else if has(0x01c0) {
                     let mag = Vector3::new(m.xmag, m.ymag, m.zmag).cast::<f64>() * NT_PER_GAUSS;
                     match check_mag(&mag) {
                         Ok(true) => out.push(SensorEvent::Mag(MagSample {
@@ -439,13 +447,13 @@ impl InputDecoder {
             }
             M::SCALED_IMU(m) => {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
-                if !self.imu_preferred(1, t_us) {
+                let imu = self.imu_preferred(1, t_us);
+                if !imu && !self.cfg.mag_from_scaled_imu {
                     return Ok(());
                 }
                 self.scaled_imu(
                     t_us,
-                    [m.xacc, m.yacc, m.zacc],
-                    [m.xgyro, m.ygyro, m.zgyro],
+                    imu.then_some(([m.xacc, m.yacc, m.zacc], [m.xgyro, m.ygyro, m.zgyro])),
                     [m.xmag, m.ymag, m.zmag],
                     out,
                 )
@@ -460,8 +468,7 @@ impl InputDecoder {
                 }
                 self.scaled_imu(
                     t_us,
-                    [m.xacc, m.yacc, m.zacc],
-                    [m.xgyro, m.ygyro, m.zgyro],
+                    Some(([m.xacc, m.yacc, m.zacc], [m.xgyro, m.ygyro, m.zgyro])),
                     [m.xmag, m.ymag, m.zmag],
                     out,
                 )
@@ -569,25 +576,28 @@ impl InputDecoder {
         }
     }
 
+    /// SCALED_IMU / RAW_IMU content: the IMU (`(acc mG, gyro mrad/s)`, absent when another
+    /// message carries it) and the magnetometer.
     fn scaled_imu(
         &mut self,
         t_us: u64,
-        acc_mg: [i16; 3],
-        gyro_mradps: [i16; 3],
+        imu: Option<([i16; 3], [i16; 3])>,
         mag_mgauss: [i16; 3],
         out: &mut Events,
     ) -> Result<(), Reject> {
         let v = |a: [i16; 3], k: f64| {
             Vector3::new(f64::from(a[0]), f64::from(a[1]), f64::from(a[2])) * k
         };
-        let accel = v(acc_mg, G_MPS2 * 1e-3);
-        let gyro = v(gyro_mradps, 1e-3);
-        check_imu(&accel, &gyro)?;
-        out.push(SensorEvent::Imu(ImuSample {
-            t_us,
-            gyro_rps: gyro,
-            accel_mps2: accel,
-        }));
+        if let Some((acc_mg, gyro_mradps)) = imu {
+            let accel = v(acc_mg, G_MPS2 * 1e-3);
+            let gyro = v(gyro_mradps, 1e-3);
+            check_imu(&accel, &gyro)?;
+            out.push(SensorEvent::Imu(ImuSample {
+                t_us,
+                gyro_rps: gyro,
+                accel_mps2: accel,
+            }));
+        }
         let mag = v(mag_mgauss, 100.0);
         if check_mag(&mag)? {
             out.push(SensorEvent::Mag(MagSample {
@@ -788,6 +798,7 @@ mod tests {
             default_sigma: (3.0, 5.0, 0.5),
             aoa_ssa_is_vanes: true,
             gnss_lag_us: 0,
+            mag_from_scaled_imu: false,
         })
     }
 
@@ -934,6 +945,7 @@ mod tests {
     fn a_gnss_fix_is_dated_the_receiver_lag_before_its_stamp_and_extreme_heights_are_refused() {
         let mut d = InputDecoder::new(DecoderConfig {
             gnss_lag_us: 120_000,
+            mag_from_scaled_imu: false,
             ..*decoder().config()
         });
         let mut m = apm::GPS_RAW_INT_DATA {
@@ -1101,6 +1113,37 @@ mod tests {
             d.decode(&apm::MavMessage::SCALED_IMU(later), &mut map)
                 .is_empty()
         );
+    }
+
+    #[test]
+    fn magnetometer_from_scaled_imu_beside_a_highres_imu() {
+        let mut d = InputDecoder::new(DecoderConfig {
+            mag_from_scaled_imu: true,
+            ..*decoder().config()
+        });
+        // HIGHRES_IMU with every field: IMU and pressure, not its (bias-corrected) field.
+        let ev = d.decode(&apm::MavMessage::HIGHRES_IMU(highres(0x1fff)), &mut map);
+        assert!(ev.iter().any(|e| matches!(e, SensorEvent::Imu(_))));
+        assert!(!ev.iter().any(|e| matches!(e, SensorEvent::Mag(_))));
+        assert_eq!(d.counters().highres_mag_ignored, 1);
+        // SCALED_IMU 10 ms later: its field (mgauss × 100 nT), not its copy of the IMU.
+        let ev = d.decode(
+            &apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
+                time_boot_ms: 1_010,
+                xacc: 1000,
+                xmag: 200,
+                zmag: 450,
+                ..Default::default()
+            }),
+            &mut map,
+        );
+        assert_eq!(ev.len(), 1);
+        let SensorEvent::Mag(mag) = &ev[0] else {
+            panic!("{ev:?}")
+        };
+        assert_eq!(mag.t_us, 1_010_000);
+        assert!((mag.mag_b_nt - Vector3::new(20_000.0, 0.0, 45_000.0)).norm() < 1e-9);
+        assert_eq!(d.counters().imu_lower_priority, 1);
     }
 
     #[test]
