@@ -141,7 +141,7 @@ fn replay_daemon_init(off: &Offline, mag_decimal_year: f64) -> BTreeMap<u64, Pos
     };
     let q_nb = off.truth[&fix.t_us].q_nb;
     let init = InsInit::new(q_nb, fix.pos, fix.v_ned_mps, mag_decimal_year);
-    let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
+    let mut ins = Ins::new(&white_reference_ins_config(), &init).unwrap();
     let mut out = BTreeMap::new();
     // Samples of the fix's instant that precede it are aiding samples of that instant.
     let start = off.events[..first]
@@ -577,6 +577,34 @@ fn denied_tolerance_m(dt_s: f64) -> f64 {
     D_POS_AT_LOSS_M + 2.0 * V_MAX_MPS * D_PSI_RAD * dt_s
 }
 
+/// The INS configuration of the runs compared with the offline INS: the vehicle's ATTITUDE
+/// is the offline INS itself, a few tenths of a degree off, so the daemon takes its errors
+/// for white (no slowly varying autopilot error to estimate, `ref_error_sigma_deg` zero) and
+/// stays aligned on it; the tolerances below rest on that.
+fn white_reference_ins_config() -> InsConfig {
+    let mut cfg = InsConfig::default();
+    cfg.alignment.ref_error_sigma_deg = [0.0; 3];
+    cfg
+}
+
+/// `toml` with [`white_reference_ins_config`]'s `[ins.alignment]` inline.
+fn with_white_reference(toml: &str) -> String {
+    let a = white_reference_ins_config().alignment;
+    format!(
+        "{toml}[ins.alignment]\nenabled = {}\nref_attitude_sigma_deg = {:?}\n\
+         ref_error_sigma_deg = {:?}\nref_error_time_s = {:?}\nmin_interval_s = {:?}\n\
+         max_lag_s = {:?}\ngate_chi2 = {:?}\nmax_consecutive_rejections = {}\n",
+        a.enabled,
+        a.ref_attitude_sigma_deg,
+        a.ref_error_sigma_deg,
+        a.ref_error_time_s,
+        a.min_interval_s,
+        a.max_lag_s,
+        a.gate_chi2,
+        a.max_consecutive_rejections
+    )
+}
+
 /// The reference run of the daemon against the `ideal` vehicle (PX4 identity, IMU and air
 /// data with vanes at 100 Hz: everything the offline INS uses), ODOMETRY out, and, in
 /// parallel, the offline flight of the same seed.
@@ -585,7 +613,7 @@ async fn ideal_run_beside_offline(setup: &FlightSetup, seed: u64) -> (Offline, R
         setup,
         seed,
         Autopilot::Ideal,
-        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
+        &with_white_reference(&daemon_toml(100.0, 100.0, ODOMETRY_HZ)),
     )
     .await
 }

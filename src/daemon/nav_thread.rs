@@ -205,6 +205,12 @@ pub fn spawn(
                                     wind_n_mps = w.x,
                                     wind_e_mps = w.y,
                                     tas_mps = sol.ins.tas_mps,
+                                    ref_att_err_roll_deg =
+                                        sol.ins.ref_attitude_err_rad.x.to_degrees(),
+                                    ref_att_err_pitch_deg =
+                                        sol.ins.ref_attitude_err_rad.y.to_degrees(),
+                                    ref_att_err_yaw_deg =
+                                        sol.ins.ref_attitude_err_rad.z.to_degrees(),
                                     "GNSS fix processed"
                                 );
                             }

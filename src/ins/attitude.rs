@@ -2,9 +2,12 @@
 //!
 //! Nominal state: `q_nb`, body rate `w_nb_b`, gyro error `E_gyr` (rad/s), magnetometer error
 //! `E_mag` (nT, body), magnetic-model error `ΔB_n = B_model − B_true` (nT, NED).
-//! Error state (15): `δx = [δθ, δw, δE_gyr, δE_mag, δΔB]` with the attitude as a **right
+//! Error state (18): `δx = [δθ, δw, δE_gyr, δE_mag, δΔB, δε]` with the attitude as a **right
 //! perturbation** `q_nb = q̂_nb ∘ Exp(δθ)` (CONVENTIONS.md), i.e. in the body tangent space
-//! where the paper's attitude error `Log(q_true⁻¹ ∘ q_est)` lives.
+//! where the paper's attitude error `Log(q_true⁻¹ ∘ q_est)` lives. `ε` is not the authors':
+//! it is the slowly varying error of another estimator's attitude that the transfer alignment
+//! fuses (`q_ref = q_nb ∘ Exp(ε + n)`, first-order Gauss–Markov, docs/INS.md), so that an
+//! autopilot's degree-level attitude error is not copied into the INS.
 //!
 //! Why not the authors' additive 4-component quaternion with renormalisation: its 4×4
 //! covariance has a direction (the norm) that is neither observable nor physical, the
@@ -36,7 +39,7 @@ use super::ekf::{self, UpdateRejection};
 use crate::math::so3;
 
 /// Number of error states.
-pub(crate) const NX: usize = 15;
+pub(crate) const NX: usize = 18;
 /// Error-state offset of the attitude `δθ`.
 pub(crate) const TH: usize = 0;
 /// Offset of the body rate `w_nb_b`.
@@ -47,6 +50,17 @@ pub(crate) const EG: usize = 6;
 pub(crate) const EM: usize = 9;
 /// Offset of the magnetic-model error `ΔB_n`.
 pub(crate) const DB: usize = 12;
+/// Offset of the reference attitude's slowly varying error `ε` (body tangent, rad).
+pub(crate) const RE: usize = 15;
+
+/// The reference attitude's slowly varying error: first-order Gauss–Markov per body axis.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct ReferenceErrorModel {
+    /// Stationary variance per body axis, rad² (zero: the reference has white errors only).
+    pub var_rad2: Vector3<f64>,
+    /// Correlation time, s.
+    pub time_s: f64,
+}
 
 /// What the attitude filter takes from the navigation output of the previous step
 /// (author_impl §1.5: position, ground velocity, low-frequency wind, accelerometer error),
@@ -86,12 +100,19 @@ pub(crate) struct AttitudeFilter {
     e_gyr: Vector3<f64>,
     e_mag: Vector3<f64>,
     delta_b_n: Vector3<f64>,
+    /// Reference attitude error estimate `ε̂`, rad.
+    ref_err: Vector3<f64>,
+    ref_err_model: ReferenceErrorModel,
     p: SMatrix<f64, NX, NX>,
 }
 
 impl AttitudeFilter {
     /// Filter at the initial estimates; P₀ per author_impl §1.5 (attitude σ from the config).
-    pub fn new(cfg: &AttitudeFilterConfig, init: &AttitudeInit) -> Self {
+    pub fn new(
+        cfg: &AttitudeFilterConfig,
+        init: &AttitudeInit,
+        ref_err_model: ReferenceErrorModel,
+    ) -> Self {
         let mut d = SVector::<f64, NX>::zeros();
         let att_var = cfg.p0_attitude_sigma_deg.to_radians().powi(2);
         for i in 0..3 {
@@ -100,6 +121,7 @@ impl AttitudeFilter {
             d[EG + i] = init.e_gyr_sigma[i].powi(2);
             d[EM + i] = init.e_mag_sigma[i].powi(2);
             d[DB + i] = init.delta_b_n_sigma[i].powi(2);
+            d[RE + i] = ref_err_model.var_rad2[i];
         }
         Self {
             q_nb: init.q_nb,
@@ -107,6 +129,8 @@ impl AttitudeFilter {
             e_gyr: init.e_gyr,
             e_mag: init.e_mag,
             delta_b_n: init.delta_b_n,
+            ref_err: Vector3::zeros(),
+            ref_err_model,
             p: SMatrix::from_diagonal(&d),
         }
     }
@@ -126,6 +150,17 @@ impl AttitudeFilter {
         let cols: SMatrix<f64, NX, 3> = fp.fixed_columns::<3>(TH) * f_tt.transpose()
             + fp.fixed_columns::<3>(W) * f_tw.transpose();
         fp.fixed_columns_mut::<3>(TH).copy_from(&cols);
+        // ε' = a ε + noise, a = exp(−Δt/τ): stationary variance var.
+        let m = &self.ref_err_model;
+        if m.time_s > 0.0 && m.var_rad2.max() > 0.0 {
+            let a = (-dt_s / m.time_s).exp();
+            fp.fixed_rows_mut::<3>(RE).scale_mut(a);
+            fp.fixed_columns_mut::<3>(RE).scale_mut(a);
+            for i in 0..3 {
+                fp[(RE + i, RE + i)] += m.var_rad2[i] * (1.0 - a * a);
+            }
+            self.ref_err *= a;
+        }
         let q = [
             cfg.q_attitude_rad2,
             cfg.q_w_nb_rad2ps2,
@@ -221,8 +256,9 @@ impl AttitudeFilter {
     }
 
     /// Transfer-alignment update with another estimator's attitude `q_ref` valid `lag_s`
-    /// before the filter's time: `q_ref = q_nb(t − lag) ∘ Exp(ε)`, `ε ~ N(0, var·I)`, so the
-    /// innovation is `Log((q̂ ∘ Exp(−w·lag))⁻¹ ∘ q_ref)` and `H = [I, 0, 0, 0, 0]` (the
+    /// before the filter's time: `q_ref = q_nb(t − lag) ∘ Exp(ε + n)`, `ε` the slowly varying
+    /// state, `n ~ N(0, var·I)` white, so the innovation is
+    /// `Log((q̂ ∘ Exp(−w·lag))⁻¹ ∘ q_ref) − ε̂` and `H = [I, 0, 0, 0, 0, I]` (first order; the
     /// lag's effect on `H` is second order). Returns the normalised innovation squared.
     pub fn update_reference(
         &mut self,
@@ -232,9 +268,11 @@ impl AttitudeFilter {
         gate_chi2: f64,
     ) -> Result<f64, UpdateRejection> {
         let q_then = self.q_nb * so3::exp(&(-self.w_nb_b * lag_s));
-        let innovation = so3::log(&(q_then.inverse() * q_ref));
+        let innovation = so3::log(&(q_then.inverse() * q_ref)) - self.ref_err;
         let mut h = SMatrix::<f64, 3, NX>::zeros();
         h.fixed_view_mut::<3, 3>(0, TH)
+            .copy_from(&Matrix3::identity());
+        h.fixed_view_mut::<3, 3>(0, RE)
             .copy_from(&Matrix3::identity());
         let c = ekf::update(
             &mut self.p,
@@ -247,14 +285,22 @@ impl AttitudeFilter {
         Ok(c.nis)
     }
 
-    /// Restart the attitude at `q_ref` with variance `var_rad2` per axis, uncorrelated with
-    /// the other states (which keep their estimates).
+    /// Restart the attitude at `q_ref` with variance `var_rad2` per axis plus the reference's
+    /// slowly varying error, uncorrelated with the other states (which keep their estimates);
+    /// that error restarts at zero with its stationary variance.
     pub fn reset_attitude(&mut self, q_ref: &UnitQuaternion<f64>, var_rad2: f64) {
         self.q_nb = *q_ref;
-        self.p.fixed_rows_mut::<3>(TH).fill(0.0);
-        self.p.fixed_columns_mut::<3>(TH).fill(0.0);
+        self.ref_err = Vector3::zeros();
+        for block in [TH, RE] {
+            self.p.fixed_rows_mut::<3>(block).fill(0.0);
+            self.p.fixed_columns_mut::<3>(block).fill(0.0);
+        }
         for i in 0..3 {
-            self.p[(TH + i, TH + i)] = var_rad2;
+            let v = self.ref_err_model.var_rad2[i];
+            self.p[(TH + i, TH + i)] = var_rad2 + v;
+            self.p[(RE + i, RE + i)] = v;
+            self.p[(TH + i, RE + i)] = -v;
+            self.p[(RE + i, TH + i)] = -v;
         }
     }
 
@@ -266,6 +312,7 @@ impl AttitudeFilter {
         self.e_gyr += dx.fixed_rows::<3>(EG);
         self.e_mag += dx.fixed_rows::<3>(EM);
         self.delta_b_n += dx.fixed_rows::<3>(DB);
+        self.ref_err += dx.fixed_rows::<3>(RE);
         // Reset: the new error δθ' = δθ − δθ̂ seen from the moved tangent space,
         // G_θθ = I − ½[δθ̂]× (first order).
         let g = Matrix3::identity() - so3::skew(&dth) * 0.5;
@@ -296,6 +343,10 @@ impl AttitudeFilter {
     pub fn delta_b_n(&self) -> Vector3<f64> {
         self.delta_b_n
     }
+    /// The reference attitude's slowly varying error estimate `ε̂`, rad.
+    pub fn ref_err(&self) -> Vector3<f64> {
+        self.ref_err
+    }
     /// Error-state covariance.
     pub fn covariance(&self) -> &SMatrix<f64, NX, NX> {
         &self.p
@@ -310,6 +361,7 @@ impl AttitudeFilter {
         s.e_gyr += dx.fixed_rows::<3>(EG);
         s.e_mag += dx.fixed_rows::<3>(EM);
         s.delta_b_n += dx.fixed_rows::<3>(DB);
+        s.ref_err += dx.fixed_rows::<3>(RE);
         s
     }
 }
@@ -329,7 +381,18 @@ mod tests {
             delta_b_n: Vector3::new(100.0, 50.0, -120.0),
             delta_b_n_sigma: Vector3::repeat(10.0),
         };
-        AttitudeFilter::new(&AttitudeFilterConfig::default(), &init)
+        AttitudeFilter::new(
+            &AttitudeFilterConfig::default(),
+            &init,
+            no_reference_error(),
+        )
+    }
+
+    fn no_reference_error() -> ReferenceErrorModel {
+        ReferenceErrorModel {
+            var_rad2: Vector3::zeros(),
+            time_s: 60.0,
+        }
     }
 
     fn context() -> AttitudeContext {

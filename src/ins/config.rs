@@ -234,8 +234,15 @@ impl Default for PositionFilterConfig {
 pub struct AlignmentConfig {
     /// Fuse reference attitudes at all.
     pub enabled: bool,
-    /// σ of the reference attitude per axis, deg.
+    /// σ of the reference attitude's white error per axis, deg.
     pub ref_attitude_sigma_deg: f64,
+    /// σ of the reference attitude's slowly varying error about the body axes x, y, z
+    /// (roll, pitch, yaw when level), deg: a GNSS-aided autopilot EKF is off by a degree or
+    /// two for tens of seconds (PX4 v1.16 beside SIH: yaw 1.1–1.5°, roll 1.1–1.6° RMS;
+    /// docs/INS.md). Zeros: white errors only.
+    pub ref_error_sigma_deg: [f64; 3],
+    /// Correlation time of that error, s.
+    pub ref_error_time_s: f64,
     /// Shortest time between two fused references, s: the reference's errors are correlated
     /// over seconds, so fusing every 25–50 Hz sample would make the filter trust it far more
     /// than its σ says; once a second was too slow to hold a cold start at a 25 Hz IMU
@@ -257,6 +264,8 @@ impl Default for AlignmentConfig {
         Self {
             enabled: true,
             ref_attitude_sigma_deg: 0.5,
+            ref_error_sigma_deg: [1.0, 1.0, 1.5],
+            ref_error_time_s: 60.0,
             min_interval_s: 0.2,
             max_lag_s: 0.1,
             gate_chi2: 16.27,
@@ -442,6 +451,10 @@ impl InsConfig {
         non_negative("position.gnss_bias_sigma_m", p.gnss_bias_sigma_m)?;
         let g = &self.alignment;
         positive("alignment.ref_attitude_sigma_deg", g.ref_attitude_sigma_deg)?;
+        for v in g.ref_error_sigma_deg {
+            non_negative("alignment.ref_error_sigma_deg", v)?;
+        }
+        positive("alignment.ref_error_time_s", g.ref_error_time_s)?;
         non_negative("alignment.min_interval_s", g.min_interval_s)?;
         non_negative("alignment.max_lag_s", g.max_lag_s)?;
         positive("alignment.gate_chi2", g.gate_chi2)?;

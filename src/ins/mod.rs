@@ -38,7 +38,7 @@ use crate::math::so3;
 use crate::math::wgs84::{self, Geodetic};
 use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
 use air_data::AirDataFilter;
-use attitude::{AttitudeContext, AttitudeFilter, AttitudeInit};
+use attitude::{AttitudeContext, AttitudeFilter, AttitudeInit, ReferenceErrorModel};
 use position::{DeniedNav, GnssFilter, GnssPhaseEstimates, PositionInit};
 
 /// Largest number of propagation sub-steps of one IMU interval (bounds the work of a very
@@ -253,6 +253,9 @@ pub struct InsSolution {
     pub e_mag_nt: Vector3<f64>,
     /// Magnetic-model error estimate `ΔB_n`, nT.
     pub delta_b_n_nt: Vector3<f64>,
+    /// The reference attitude's slowly varying error estimate `ε̂` (transfer alignment,
+    /// `q_ref = q_nb ∘ Exp(ε)`), body axes, rad; zero without references.
+    pub ref_attitude_err_rad: Vector3<f64>,
     /// GNSS-denied mode (latched once entered).
     pub gnss_denied: bool,
     /// Normalised innovation squared of the GNSS fix processed at this step (fused or gated;
@@ -609,6 +612,11 @@ impl Ins {
                 e_mag_sigma: init.e_mag_sigma_nt,
                 delta_b_n: init.delta_b_n_nt,
                 delta_b_n_sigma: init.delta_b_n_sigma_nt,
+            },
+            ReferenceErrorModel {
+                var_rad2: Vector3::from(cfg.alignment.ref_error_sigma_deg.map(f64::to_radians))
+                    .map(|s| s * s),
+                time_s: cfg.alignment.ref_error_time_s,
             },
         );
         let gnss = GnssFilter::new(
@@ -1008,6 +1016,7 @@ fn solution(
         e_acc_mps2: e_acc,
         e_mag_nt: core.att.e_mag(),
         delta_b_n_nt: core.att.delta_b_n(),
+        ref_attitude_err_rad: core.att.ref_err(),
         gnss_denied,
         gnss_nis,
         cov: InsCovariance {

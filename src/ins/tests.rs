@@ -1272,21 +1272,42 @@ fn with_reference(
     }
 }
 
-/// A start in flight with unknown sensor errors (cold start: zero estimates, cold σ), straight
-/// and level, 120 s of GNSS. Returns the final solution and the INS.
-fn cold_start_in_flight(seed: u64, reference: bool) -> (Truth, InsSolution, Ins) {
-    let mut synth = Synth::new(turn_motion(0.0), 100.0, seed);
+/// A start in flight with unknown sensor errors (cold start: zero estimates, cold σ) at a
+/// constant bank, `seconds` of GNSS, with reference attitudes (white σ 0.5° plus `offset`) if
+/// `reference` is set. Returns the final solution and the INS.
+fn cold_start_in_flight(
+    seed: u64,
+    bank_deg: f64,
+    seconds: f64,
+    reference: Option<Vector3<f64>>,
+    cfg: &InsConfig,
+) -> (Truth, InsSolution, Ins) {
+    let mut synth = Synth::new(turn_motion(bank_deg), 100.0, seed);
     let tr = synth.truth();
     let init = InsInit::new(tr.q_nb, tr.pos, tr.v_n, YEAR);
-    let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
+    let mut ins = Ins::new(cfg, &init).unwrap();
     let mut last = None;
-    let mut refs = with_reference(0.5, Vector3::zeros(), seed);
-    let tamper = |tr: &Truth, e| if reference { refs(tr, e) } else { vec![e] };
-    run_with(&mut synth, &mut ins, 120.0, tamper, |_, tr, sol| {
+    let mut refs = with_reference(0.5, reference.unwrap_or_default(), seed);
+    let tamper = |tr: &Truth, e| {
+        if reference.is_some() {
+            refs(tr, e)
+        } else {
+            vec![e]
+        }
+    };
+    run_with(&mut synth, &mut ins, seconds, tamper, |_, tr, sol| {
         last = Some((*tr, *sol));
     });
     let (tr, sol) = last.unwrap();
     (tr, sol, ins)
+}
+
+/// The configuration with a reference whose errors are known to be white (no slowly varying
+/// part to estimate).
+fn white_reference_config() -> InsConfig {
+    let mut cfg = InsConfig::default();
+    cfg.alignment.ref_error_sigma_deg = [0.0; 3];
+    cfg
 }
 
 #[test]
@@ -1295,8 +1316,9 @@ fn transfer_alignment_estimates_the_sensor_errors_of_a_start_in_flight() {
     // 300–400 nT). Without a reference the heading is only as good as the magnetometer, whose
     // unknown body-fixed error cannot be told from a heading error on a straight leg:
     // |E_mag,h| / |B_h| ≈ 500 nT / 19 µT ≈ 1.5°. With the autopilot's attitude (σ 0.5°,
-    // fused five times a second) both errors become observable.
-    let (tr, sol, ins) = cold_start_in_flight(3, true);
+    // fused five times a second, errors known to be white) both errors become observable.
+    let cfg = white_reference_config();
+    let (tr, sol, ins) = cold_start_in_flight(3, 0.0, 120.0, Some(Vector3::zeros()), &cfg);
     let e = att_err(&tr, &sol);
     assert!(e.norm() < ATT_NORM_MAX_RAD, "attitude error {e}");
     assert!(within(&e, &sol.cov.attitude_rad2, 0.0), "{e}");
@@ -1308,10 +1330,40 @@ fn transfer_alignment_estimates_the_sensor_errors_of_a_start_in_flight() {
     assert_eq!((st.ref_attitude_fused, st.ref_attitude_gated), (600, 0));
     assert_eq!(st.ref_attitude_unused, 6_000 - 600);
     // Control: the same start without the reference is off by about the magnetometer error.
-    let (tr0, sol0, ins0) = cold_start_in_flight(3, false);
+    let (tr0, sol0, ins0) = cold_start_in_flight(3, 0.0, 120.0, None, &cfg);
     let e0 = att_err(&tr0, &sol0);
     assert!(e0.norm() > 3.0 * ATT_NORM_MAX_RAD, "without reference {e0}");
     assert_eq!(ins0.stats().ref_attitude_fused, 0);
+}
+
+#[test]
+fn an_autopilot_attitude_error_is_estimated_not_copied() {
+    // The autopilot's attitude is off by 2° in yaw and 1° in roll for the whole flight (its
+    // slowly varying error in the limit of a long correlation time). Circling at 10° of bank
+    // (a turn every 109 s) makes the magnetometer's body-fixed error observable, so the
+    // INS's own heading is good to the magnetic-model error it cannot observe (ERRORS: 70 nT
+    // east on the 19 µT horizontal field, 0.2°) plus what the cold gyro and magnetometer
+    // leave after 300 s.
+    let offset = Vector3::new(1.0, 0.0, 2.0).map(f64::to_radians);
+    let (tr, sol, ins) = cold_start_in_flight(5, 10.0, 300.0, Some(offset), &InsConfig::default());
+    let e = att_err(&tr, &sol);
+    // Nearer the truth than the reference by a wide margin, and within its own σ.
+    assert!(e.z.abs() < 0.5 * offset.z, "heading error {e}");
+    assert!(e.x.abs() < 0.5 * offset.x, "roll error {e}");
+    assert!(within(&e, &sol.cov.attitude_rad2, 0.0), "{e}");
+    // The offset is found as the reference's error (|ε̂ − offset| within what the attitude
+    // error leaves).
+    let found = sol.ref_attitude_err_rad;
+    assert!((found - offset).norm() < 0.5 * offset.norm(), "ε̂ {found}");
+    assert_eq!(ins.stats().ref_attitude_gated, 0);
+    // Control: taking the reference's errors for white, the INS copies the offset.
+    let (tr1, sol1, _) =
+        cold_start_in_flight(5, 10.0, 300.0, Some(offset), &white_reference_config());
+    let e1 = att_err(&tr1, &sol1);
+    assert!(
+        (e1.z - offset.z).abs() < 0.25 * offset.z,
+        "copied heading {e1}"
+    );
 }
 
 #[test]

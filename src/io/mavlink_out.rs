@@ -340,6 +340,7 @@ pub(crate) mod tests {
                 e_acc_mps2: Vector3::zeros(),
                 e_mag_nt: Vector3::zeros(),
                 delta_b_n_nt: Vector3::zeros(),
+                ref_attitude_err_rad: Vector3::zeros(),
                 gnss_denied: false,
                 gnss_nis: None,
                 cov: InsCovariance {
