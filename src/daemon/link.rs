@@ -992,4 +992,30 @@ mod tests {
             Some(LockChange::Locked)
         );
     }
+
+    #[test]
+    fn scaled_imu_is_requested_beside_px4_only_for_the_magnetometer_setting() {
+        let cfg = |mag: &str| {
+            DaemonConfig::from_toml_str(
+                &format!(
+                    "[mavlink]\nconnection = \"udpin:127.0.0.1:14540\"\n\
+                     [input]\nmagnetometer = \"{mag}\"\n[output]\nrate_hz = 10.0\n"
+                ),
+                None,
+            )
+            .unwrap()
+        };
+        let ids = |c: &DaemonConfig, k| -> Vec<u32> {
+            requested_streams(c, k).iter().map(|(id, _)| *id).collect()
+        };
+        let scaled = apm::SCALED_IMU_DATA::ID;
+        let px4_default = ids(&cfg("imu"), AutopilotKind::Px4);
+        assert!(px4_default.contains(&apm::HIGHRES_IMU_DATA::ID));
+        assert!(!px4_default.contains(&scaled));
+        let px4_raw = ids(&cfg("scaled_imu"), AutopilotKind::Px4);
+        assert!(px4_raw.contains(&apm::HIGHRES_IMU_DATA::ID) && px4_raw.contains(&scaled));
+        // ArduPilot's IMU message is SCALED_IMU already: requested once.
+        let ap = ids(&cfg("scaled_imu"), AutopilotKind::Ardupilot);
+        assert_eq!(ap.iter().filter(|&&id| id == scaled).count(), 1);
+    }
 }
