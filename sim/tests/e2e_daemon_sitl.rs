@@ -380,13 +380,13 @@ async fn fly_vehicle(
 
 fn daemon_toml(imu_rate_hz: f64, air_rate_hz: f64, output_hz: f64) -> String {
     let year = setup().scenario.magnetic_decimal_year;
-    format!(
+    with_white_reference(&format!(
         "link_timeout_s = 3.0\n\
          [input]\nimu_rate_hz = {imu_rate_hz}\nair_rate_hz = {air_rate_hz}\naoa_ssa = \"vanes\"\n\
          [output]\nmode = \"odometry\"\nrate_hz = {output_hz}\n\
          [navigation]\nmag_decimal_year = {year}\n\
          [logging]\ncounters_period_s = 0.0\n"
-    )
+    ))
 }
 
 /// The daemon's configuration for a real ArduPlane: its AOA_SSA is derived from its own
@@ -577,10 +577,10 @@ fn denied_tolerance_m(dt_s: f64) -> f64 {
     D_POS_AT_LOSS_M + 2.0 * V_MAX_MPS * D_PSI_RAD * dt_s
 }
 
-/// The INS configuration of the runs compared with the offline INS: the vehicle's ATTITUDE
-/// is the offline INS itself, a few tenths of a degree off, so the daemon takes its errors
-/// for white (no slowly varying autopilot error to estimate, `ref_error_sigma_deg` zero) and
-/// stays aligned on it; the tolerances below rest on that.
+/// The INS configuration of every daemon run here and of the replay: the vehicles' ATTITUDE
+/// is the offline INS itself (fine-aligned, a few tenths of a degree off), so the daemon takes
+/// its errors for white (no slowly varying autopilot error to estimate, `ref_error_sigma_deg`
+/// zero) and stays aligned on it; the tolerances below rest on that (docs/E2E.md).
 fn white_reference_ins_config() -> InsConfig {
     let mut cfg = InsConfig::default();
     cfg.alignment.ref_error_sigma_deg = [0.0; 3];
@@ -613,7 +613,7 @@ async fn ideal_run_beside_offline(setup: &FlightSetup, seed: u64) -> (Offline, R
         setup,
         seed,
         Autopilot::Ideal,
-        &with_white_reference(&daemon_toml(100.0, 100.0, ODOMETRY_HZ)),
+        &daemon_toml(100.0, 100.0, ODOMETRY_HZ),
     )
     .await
 }
