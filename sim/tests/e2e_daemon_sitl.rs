@@ -589,20 +589,9 @@ fn white_reference_ins_config() -> InsConfig {
 
 /// `toml` with [`white_reference_ins_config`]'s `[ins.alignment]` inline.
 fn with_white_reference(toml: &str) -> String {
-    let a = white_reference_ins_config().alignment;
-    format!(
-        "{toml}[ins.alignment]\nenabled = {}\nref_attitude_sigma_deg = {:?}\n\
-         ref_error_sigma_deg = {:?}\nref_error_time_s = {:?}\nmin_interval_s = {:?}\n\
-         max_lag_s = {:?}\ngate_chi2 = {:?}\nmax_consecutive_rejections = {}\n",
-        a.enabled,
-        a.ref_attitude_sigma_deg,
-        a.ref_error_sigma_deg,
-        a.ref_error_time_s,
-        a.min_interval_s,
-        a.max_lag_s,
-        a.gate_chi2,
-        a.max_consecutive_rejections
-    )
+    let alignment = toml::to_string(&white_reference_ins_config().alignment)
+        .expect("AlignmentConfig serialises");
+    format!("{toml}[ins.alignment]\n{alignment}")
 }
 
 /// The reference run of the daemon against the `ideal` vehicle (PX4 identity, IMU and air
