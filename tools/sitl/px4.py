@@ -622,6 +622,10 @@ class Harness:
             self.upload_mission(self.mission_items(lat0, lon0))
             log("mission uploaded")
             self.sim_sleep(5)
+            # The same time on the ground in every mode: EKF2's heading and biases settle
+            # while it stands still, and alone mode's link probe used to give it 34 s more.
+            self.wait_t(lambda: self.latest_t_us >= a.arm_at_s * 1e6, a.arm_at_s / 0.2 + 60,
+                        f"PX4 time {a.arm_at_s} s")
             for attempt in range(30):
                 self.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4, 4)  # AUTO.MISSION
                 r = self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
@@ -756,6 +760,8 @@ class Harness:
             "seed": 1234,
             "seed_note": "SIH seeds its sensor noise with srand(1234) at start; not settable",
             "speed_factor": a.speed_factor,
+            "arm_at_px4_time_s": a.arm_at_s,
+            "armed_px4_time_s": round(self.t_arm / 1e6, 3) if self.t_arm is not None else -1.0,
             "cruise_before_loss_s": a.cruise_s,
             "denied_s": a.denied_s,
             "timesync_dropped_by_router": self.drop_timesync,
@@ -1085,6 +1091,8 @@ def main(argv=None):
     ap.add_argument("--speed-factor", type=float, default=4.0)
     ap.add_argument("--instance", type=int, default=0)
     ap.add_argument("--alt-m", type=float, default=100.0)
+    ap.add_argument("--arm-at-s", type=float, default=60.0,
+                    help="arm no earlier than this PX4 time since boot, in every mode")
     ap.add_argument("--cruise-s", type=float, default=180.0, help="cruise in wind before the loss")
     ap.add_argument("--denied-s", type=float, default=630.0, help="flight after the loss")
     ap.add_argument("--ev-ctrl", type=int, default=1,
