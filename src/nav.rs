@@ -97,6 +97,11 @@ impl Navigator {
         self.ins.as_ref().is_some_and(Ins::gnss_denied)
     }
 
+    /// The GNSS-denied covariance budget at the loss ([`Ins::denied_budget`]).
+    pub fn denied_budget(&self) -> Option<&crate::ins::DeniedBudget> {
+        self.ins.as_ref().and_then(Ins::denied_budget)
+    }
+
     /// Feed one event; an accepted IMU sample returns the solution at its time.
     pub fn push(&mut self, event: &SensorEvent) -> Option<NavSolution> {
         match event {

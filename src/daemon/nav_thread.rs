@@ -130,6 +130,8 @@ pub fn spawn(
             let mut last: Option<crate::nav::NavSolution> = None;
             // (first, newest) fix time of the current run of fixes while GNSS-denied.
             let mut back: Option<(u64, u64)> = None;
+            // The denied-mode covariance budget is logged once per loss.
+            let mut budget_logged = false;
             while let Some(input) = rx.blocking_recv() {
                 if let Some(kind) = fault
                     && started.elapsed() >= super::Fault::AFTER
@@ -213,6 +215,27 @@ pub fn spawn(
                                         sol.ins.ref_attitude_err_rad.z.to_degrees(),
                                     "GNSS fix processed"
                                 );
+                            }
+                            if sol.ins.gnss_denied && !budget_logged {
+                                budget_logged = true;
+                                if let Some(b) = nav.denied_budget() {
+                                    let g = b.gust_sigma_b_mps;
+                                    tracing::info!(
+                                        wind_sigma_mps = b.wind_sigma_mps,
+                                        wind_avg_sigma_mps = b.wind_avg_sigma_mps,
+                                        wind_gust_sigma_mps = b.wind_gust_sigma_mps,
+                                        wind_air_bias_sigma_mps = b.wind_air_bias_sigma_mps,
+                                        wind_attitude_sigma_mps = b.wind_attitude_sigma_mps,
+                                        gust_sigma_x_mps = g.x,
+                                        gust_sigma_y_mps = g.y,
+                                        gust_sigma_z_mps = g.z,
+                                        gust_tau_x_s = b.gust_tau_s.x,
+                                        heading_sigma_deg = b.heading_sigma_rad.to_degrees(),
+                                        "GNSS-denied covariance at the loss (docs/INS.md)"
+                                    );
+                                }
+                            } else if !sol.ins.gnss_denied {
+                                budget_logged = false;
                             }
                             last = Some(sol);
                             publisher.on_solution(&sol, rx_at);

@@ -39,6 +39,7 @@ use crate::math::wgs84::{self, Geodetic};
 use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
 use air_data::AirDataFilter;
 use attitude::{AttitudeContext, AttitudeFilter, AttitudeInit, ReferenceErrorModel};
+pub use position::DeniedBudget;
 use position::{DeniedNav, GnssFilter, GnssPhaseEstimates, PositionInit};
 
 /// Largest number of propagation sub-steps of one IMU interval (bounds the work of a very
@@ -430,6 +431,14 @@ impl Ins {
             self.core.as_deref().map(|c| &c.position),
             Some(PositionMode::Denied(_))
         )
+    }
+
+    /// What the GNSS-denied covariance started from, once the INS is GNSS-denied.
+    pub fn denied_budget(&self) -> Option<&DeniedBudget> {
+        match self.core.as_deref().map(|c| &c.position) {
+            Some(PositionMode::Denied(d)) => Some(d.budget()),
+            _ => None,
+        }
     }
 
     /// Feed one event. Air, magnetometer and GNSS samples are validated and kept for the next

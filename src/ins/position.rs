@@ -660,6 +660,33 @@ const DR_A: usize = 12;
 /// the averaged attitude `C̄`: `δw ∋ −C̄ δb`) and with `δθ_n` (it absorbed the attitude error at
 /// the averaged air velocity: `δw ∋ −[v̄_air]× δθ_n`, so a heading error costs nothing on the
 /// heading the wind was averaged on and up to `2 V δψ` on the opposite one).
+/// What the GNSS-denied covariance started from at the loss, as 1-σ values (horizontal ones
+/// are DRMS, `√(σ_N² + σ_E²)`): why the published accuracy grows as it does.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct DeniedBudget {
+    /// Turbulence measured while GNSS was available, per body axis, m/s.
+    pub gust_sigma_b_mps: Vector3<f64>,
+    /// Its correlation times `L/V` per body axis, s.
+    pub gust_tau_s: Vector3<f64>,
+    /// Frozen-wind error, horizontal, m/s: the sum of the four parts below.
+    pub wind_sigma_mps: f64,
+    /// Part: the averaged covariance of the raw-wind samples, m/s.
+    pub wind_avg_sigma_mps: f64,
+    /// Part: the gusts the wind average still holds, m/s.
+    pub wind_gust_sigma_mps: f64,
+    /// Part: the air-velocity bias the wind absorbed, m/s.
+    pub wind_air_bias_sigma_mps: f64,
+    /// Part: the attitude error the wind absorbed, m/s.
+    pub wind_attitude_sigma_mps: f64,
+    /// Heading σ at the loss, rad.
+    pub heading_sigma_rad: f64,
+}
+
+/// Horizontal DRMS of a NED covariance.
+fn horizontal_drms(m: &Matrix3<f64>) -> f64 {
+    (m[(0, 0)] + m[(1, 1)]).max(0.0).sqrt()
+}
+
 #[derive(Debug, Clone)]
 pub(crate) struct DeniedNav {
     /// 6-state EKF `[f_ib_b, E_acc]`.
@@ -679,6 +706,7 @@ pub(crate) struct DeniedNav {
     gust_scale_m: [f64; 3],
     h_var: f64,
     v_cov: Matrix3<f64>,
+    budget: DeniedBudget,
 }
 
 impl DeniedNav {
@@ -728,11 +756,24 @@ impl DeniedNav {
         // Raw wind error ∋ −(Ĉ − C) v_air = −[v_air,n]× δθ_n, averaged over the window.
         let j_wa = -so3::skew(&est.v_air_n_mean());
         let p_wa = j_wa * att_cov_n;
-        let p_ww = wind_cov
-            + c_bar
-                * (p_bb + Matrix3::from_diagonal(&gust_var_b.component_mul(&held_var)))
-                * c_bar.transpose()
-            + j_wa * att_cov_n * j_wa.transpose();
+        let p_w_gust = c_bar
+            * Matrix3::from_diagonal(&gust_var_b.component_mul(&held_var))
+            * c_bar.transpose();
+        let p_w_bias = c_bar * p_bb * c_bar.transpose();
+        let p_w_att = j_wa * att_cov_n * j_wa.transpose();
+        let p_ww = wind_cov + p_w_gust + p_w_bias + p_w_att;
+        let budget = DeniedBudget {
+            gust_sigma_b_mps: gust_var_b.map(|v| v.max(0.0).sqrt()),
+            gust_tau_s: Vector3::from_fn(|i, _| {
+                gust_tau_s(cfg.turbulence_integral_scale_m[i], tas)
+            }),
+            wind_sigma_mps: horizontal_drms(&p_ww),
+            wind_avg_sigma_mps: horizontal_drms(&wind_cov),
+            wind_gust_sigma_mps: horizontal_drms(&p_w_gust),
+            wind_air_bias_sigma_mps: horizontal_drms(&p_w_bias),
+            wind_attitude_sigma_mps: horizontal_drms(&p_w_att),
+            heading_sigma_rad: att_cov_n[(2, 2)].max(0.0).sqrt(),
+        };
         let mut p_dr = SMatrix::<f64, NDR, NDR>::zeros();
         p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P)
             .copy_from(&gnss.position_cov_with_bias(cfg));
@@ -765,7 +806,13 @@ impl DeniedNav {
             gust_scale_m: cfg.turbulence_integral_scale_m,
             h_var: gnss.p[(P + 2, P + 2)],
             v_cov: gnss.velocity_cov(),
+            budget,
         }
+    }
+
+    /// The covariance budget at the loss.
+    pub fn budget(&self) -> &DeniedBudget {
+        &self.budget
     }
 
     /// The 6-state EKF step: predict (`F = I`) and update with the accelerometer.

@@ -603,6 +603,7 @@ fn gnss_loss(seed: u64) {
     let mut synth = Synth::new(turn_motion(10.0), 100.0, seed);
     synth.gnss_until_us = LAST_FIX_US + 1;
     let mut ins = new_ins(&mut synth);
+    assert!(ins.denied_budget().is_none());
     let timeout_us = (InsConfig::default().position.gnss_timeout_s * 1e6) as u64;
     let mut at_switch: Option<(Truth, InsSolution)> = None;
     let mut last = None;
@@ -648,6 +649,26 @@ fn gnss_loss(seed: u64) {
         Some(LAST_FIX_US + timeout_us + 10_000)
     );
     assert_eq!(ins.stats().gnss_fused, 100);
+    // The budget at the loss explains the frozen wind's published covariance at the switch:
+    // its parts add up (a sum of covariances) to the same horizontal σ, which covers the error.
+    let (_, sol_switch) = at_switch.unwrap();
+    let b = ins.denied_budget().expect("budget once GNSS-denied");
+    let parts = [
+        b.wind_avg_sigma_mps,
+        b.wind_gust_sigma_mps,
+        b.wind_air_bias_sigma_mps,
+        b.wind_attitude_sigma_mps,
+    ];
+    let sum_sq: f64 = parts.iter().map(|p| p * p).sum();
+    assert!((sum_sq.sqrt() - b.wind_sigma_mps).abs() < 1e-9 * b.wind_sigma_mps);
+    let published = (sol_switch.cov.wind_m2ps2[(0, 0)] + sol_switch.cov.wind_m2ps2[(1, 1)]).sqrt();
+    assert!(
+        (published - b.wind_sigma_mps).abs() < 1e-6 * published,
+        "budget {} m/s, published {published} m/s",
+        b.wind_sigma_mps
+    );
+    assert!(wind_err <= K_SIGMA * b.wind_sigma_mps);
+    assert!(b.heading_sigma_rad > 0.0 && b.gust_tau_s.iter().all(|t| *t > 0.0));
     // ΔT is still estimated after the loss (it keeps moving with the thermometer noise) and
     // stays within 5σ of the truth.
     let (_, sol0) = at_switch.unwrap();
