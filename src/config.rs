@@ -1,7 +1,7 @@
-//! Daemon configuration (`config/ianav.toml`; issue 5 "Configuration", research/mavlink.md
-//! §6.3): the MAVLink link, what to request from and publish to the autopilot, the camera
-//! source, the INS configuration and logging. Unknown keys and out-of-range values are errors
-//! that name the key (`output.rate_hz = 500: must be in [1, 200]`).
+//! Daemon configuration (`config/ianav.toml`; docs/DAEMON.md "Configuration keys"): the MAVLink
+//! link, what to request from and publish to the autopilot, the camera source, the INS
+//! configuration and logging. Unknown keys and out-of-range values are errors that name the key
+//! (`output.rate_hz = 500: must be in [1, 200]`).
 
 use std::path::{Path, PathBuf};
 

@@ -1,6 +1,5 @@
-//! `ianav`: the onboard navigation daemon (issue 5). `ianav run --config FILE` talks MAVLink to
-//! a PX4 or ArduPilot autopilot (docs/DAEMON.md); `ianav check-config FILE` validates a
-//! configuration.
+//! `ianav`: the onboard navigation daemon. `ianav run --config FILE` talks MAVLink to a PX4 or
+//! ArduPilot autopilot (docs/DAEMON.md); `ianav check-config FILE` validates a configuration.
 
 use std::path::{Path, PathBuf};
 use std::time::Duration;

@@ -1,5 +1,5 @@
-//! Renderer benchmarks (issue 4 target: ≤ 25 ms per 768 × 1024 frame on 2 cores, tile
-//! generation included, amortised along a scenario #2-like flight).
+//! Renderer benchmarks (target: ≤ 25 ms per 768 × 1024 frame on 2 cores, tile generation included,
+//! amortised along a scenario #2-like flight).
 //!
 //! - `render/warm_nadir/<zone>`: the same nadir view again and again (all tiles cached): the
 //!   cost of ray casting and albedo sampling alone.

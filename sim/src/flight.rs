@@ -2,8 +2,8 @@
 //! environment and the 6-DOF aircraft integrated at 500 Hz, sensors sampled at 100 Hz (GNSS at
 //! 1 Hz until it is lost), guidance and control at 50 Hz closing the loop on the *navigation
 //! estimate*, and truth output at 10 Hz. A flight is a pure function of its setup and seed.
-//! With a camera set up (issue 4), a 10 Hz frame rendered from the true camera pose is
-//! delivered as `SensorEvent::Frame` from mission time 0 on.
+//! With a camera set up, a 10 Hz frame rendered from the true camera pose is delivered as
+//! `SensorEvent::Frame` from mission time 0 on.
 
 use ianav::env::atmosphere::{self, AtmosphereOffsets};
 use ianav::env::magnetic::{MagneticGrid, MagneticModel};
@@ -122,8 +122,8 @@ pub enum NavigationMode {
     Ins,
 }
 
-/// A horizontal position from an external navigation source (issue 5, item 5: after GNSS
-/// loss an autopilot can fly on a companion computer's position). While a fresh aid is set,
+/// A horizontal position from an external navigation source (after GNSS loss an autopilot
+/// can fly on a companion computer's position, docs/SITL.md). While a fresh aid is set,
 /// guidance and control fly on its latitude and longitude, carried from its time of validity
 /// to the current instant with the INS ground velocity; everything else (height, velocity,
 /// attitude, air data) stays the vehicle's own INS. This models an autopilot EKF that trusts
@@ -139,7 +139,7 @@ pub struct PositionAid {
     pub lon_rad: f64,
 }
 
-/// The down-looking camera and the terrain it sees (issue 4); off unless set.
+/// The down-looking camera and the terrain it sees; off unless set.
 #[derive(Debug, Clone)]
 pub struct CameraSetup {
     /// The terrain (shared: its tile cache serves every flight that flies over it).
@@ -373,7 +373,7 @@ pub struct Flight {
     estimate: NavEstimate,
     navigation_mode: NavigationMode,
     ins_config: InsConfig,
-    /// Initial-error draws of the INS (author_impl §1.9).
+    /// Initial-error draws of the INS (docs/REFERENCES.md A1.9).
     ins_init_rng: rng::Stream,
     magnetic_decimal_year: f64,
     ins: Option<Ins>,
@@ -947,7 +947,7 @@ impl Flight {
         Ok(())
     }
 
-    /// The INS started at the current instant with the initial errors of author_impl §1.9:
+    /// The INS started at the current instant with the initial errors of docs/REFERENCES.md A1.9:
     /// attitude off by 0.1°·N about a random axis, sensor-error estimates within 1 % (10 % for
     /// the magnetic-model error) of the truth; position and velocity from the GNSS fix.
     fn initial_ins(&mut self, truth: &NavEstimate, fix: &GnssFix) -> Result<Ins, FlightError> {

@@ -1,8 +1,8 @@
-//! Navigation system error (NSE) of one flight, as the paper's INSE/VNSE tables and figures
-//! define it (CONVENTIONS "Errors (navigation system error, NSE)"; author_impl §6.6: per-run
-//! time histories sampled every 10 s of mission time): Euler-angle and attitude-norm errors,
-//! vertical error, horizontal error in metres and as a percentage of the distance flown.
-//! Errors are `estimate − truth`.
+//! Navigation system error (NSE) of one flight, as the paper's INSE/VNSE tables and figures define
+//! it (docs/MONTECARLO.md "Navigation system error"; docs/REFERENCES.md P4, and A6.6: per-run time
+//! histories sampled every 10 s of mission time): Euler-angle and attitude-norm errors, vertical
+//! error, horizontal error in metres and as a percentage of the distance flown. Errors are
+//! `estimate − truth`.
 
 use ianav::ins::InsSolution;
 use ianav::math::{angle, so3, wgs84};

@@ -1,5 +1,5 @@
-//! Monte Carlo batches (issue 3 §4; the paper's 100 runs per scenario, author_impl §6.1 and
-//! §6.4): fly one scenario for a list of seeds in parallel, record the navigation system
+//! Monte Carlo batches (the paper's 100 runs per scenario, docs/REFERENCES.md P1, A6.1 and
+//! A6.4): fly one scenario for a list of seeds in parallel, record the navigation system
 //! error of each run (`crate::metrics`) in its own file so that shards flown on different
 //! machines merge by copying files, and write a manifest of the batch.
 //!

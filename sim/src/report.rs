@@ -1,8 +1,8 @@
-//! Monte Carlo report (issue 3 §4; the paper's INSE tables and its mean ± σ error figures;
-//! author_impl §6.6: mean, σ and largest value across runs of histories sampled every 10 s):
-//! reads the run files of one or several batch directories (shards merge by seed), and writes
-//! `report.md` with the navigation system error at `t_end`, the time histories as PNG plots
-//! and as `nse_timeseries.csv`.
+//! Monte Carlo report (the paper's INSE tables and its mean ± σ error figures, docs/REFERENCES.md
+//! P4; the authors' post-processing, A6.6: mean, σ and largest value across runs of histories
+//! sampled every 10 s): reads the run files of one or several batch directories (shards merge by
+//! seed), and writes `report.md` with the navigation system error at `t_end`, the time histories as
+//! PNG plots and as `nse_timeseries.csv`.
 //!
 //! Everything written depends only on the set of run files: runs are sorted by seed, sums run
 //! in that order and numbers are printed with fixed decimals, so shards merged give the same
@@ -21,8 +21,9 @@ use crate::plots::{self, Chart, PALETTE, Series};
 pub const REPORT_FILE: &str = "report.md";
 /// Mean and σ of every error at every sample time.
 pub const TIMESERIES_FILE: &str = "nse_timeseries.csv";
-/// Fraction of the flight, at its end, over which the attitude-norm drift is fitted (issue 3
-/// acceptance: "the mean over the last 25% of the flight grows less than 0.05° per 1,000 s").
+/// Fraction of the flight, at its end, over which the attitude-norm drift is fitted (the
+/// "no drift" acceptance criterion: the mean over the last 25% of the flight grows less than
+/// 0.05° per 1,000 s).
 const DRIFT_WINDOW_FRACTION: f64 = 0.25;
 /// Run files of one batch must agree on the mission duration to this tolerance, s (they
 /// store it with 1 ms resolution).

@@ -1,4 +1,4 @@
-//! The paper's two GNSS-denied scenarios (section "Scenarios"; author_impl §6): scenario #1
+//! The paper's two GNSS-denied scenarios (section "Scenarios"; docs/REFERENCES.md A6): scenario #1
 //! (3,800 s: a turn, an airspeed change and a climb or descent under weather and wind ramps)
 //! and scenario #2 (500 s: up to eight turns in constant weather and wind). Every stochastic
 //! parameter is drawn from its own seeded stream.
@@ -30,9 +30,9 @@ pub enum ScenarioError {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MissionKind {
-    /// Scenario #1: turn, airspeed change, climb or descent (author_impl §6.2).
+    /// Scenario #1: turn, airspeed change, climb or descent (docs/REFERENCES.md A6.2).
     Benchmark,
-    /// Scenario #2: up to eight turns at constant airspeed and altitude (author_impl §6.3).
+    /// Scenario #2: up to eight turns at constant airspeed and altitude (docs/REFERENCES.md A6.3).
     Alternate,
 }
 
@@ -46,7 +46,7 @@ pub struct StartConfig {
     pub lon_deg: f64,
 }
 
-/// Distributions of the mission draws (author_impl §6.2; `N` is a standard normal draw).
+/// Distributions of the mission draws (docs/REFERENCES.md A6.2; `N` is a standard normal draw).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MissionDrawConfig {
@@ -414,7 +414,7 @@ fn hold(tas_mps: f64, hp_m: f64, chi_deg: f64, trigger: Trigger) -> Operation {
 }
 
 impl Mission {
-    /// Draw the mission of one run (author_impl §6.2 draws 1–9, then §6.3 for scenario #2).
+    /// Draw the mission of one run (docs/REFERENCES.md A6.2 draws 1–9, then A6.3 for scenario #2).
     ///
     /// Each constrained draw is redrawn until it satisfies its rule ([`rng::normal_until`]);
     /// should the cap be reached (a degenerate configuration), the fallback is the acceptable

@@ -371,7 +371,7 @@ fn linear_modes_are_stable_and_plausible() {
                         m.roll_eigenvalue_ps,
                         m.spiral_eigenvalue_ps,
                     );
-                    // Short period well damped (brief: ζ > 0.4), frequency of a small UAV.
+                    // Short period well damped (design target: ζ > 0.4), frequency of a small UAV.
                     assert!(
                         m.short_period.zeta > 0.4
                             && (2.0..15.0).contains(&m.short_period.omega_n_rps)

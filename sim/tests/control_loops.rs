@@ -1,4 +1,4 @@
-//! Closed-loop tests of the guidance and control (docs/CONTROL.md, author_impl §5).
+//! Closed-loop tests of the guidance and control (docs/CONTROL.md, docs/REFERENCES.md A5).
 //!
 //! The acceptance tests (`control_*` on [`Flight`]) fly the simulator's flight loop: the
 //! environment and the aircraft at 500 Hz, sensors at 100 Hz, the controller at 50 Hz on
@@ -279,7 +279,7 @@ struct Sample {
 enum Start {
     /// Trimmed wings level, the controller told the trim.
     Trimmed,
-    /// The authors' initial conditions (author_impl §5.3): θ = 0, ξ = 0, α = −0.2°, β = 0,
+    /// The authors' initial conditions (docs/REFERENCES.md A5.3): θ = 0, ξ = 0, α = −0.2°, β = 0,
     /// ω = 0, controls (0.3, 0, 0, 0), controller integrals zero.
     Authors,
 }
@@ -506,7 +506,7 @@ fn deg(x: f64) -> f64 {
 }
 
 /// Turn of `dchi_deg` (sign = direction) from bearing `chi0_deg` at 10° bank, ending 5°
-/// before the new bearing (author_impl §6.2), then bearing hold; 29 m/s, Hp 2,700 m.
+/// before the new bearing (docs/REFERENCES.md A6.2), then bearing hold; 29 m/s, Hp 2,700 m.
 fn turn_flight(cfg: &ControlConfig, chi0_deg: f64, dchi_deg: f64, duration_s: f64) -> Vec<Sample> {
     let chi0 = chi0_deg.to_radians();
     let chi1 = chi0 + dchi_deg.to_radians();

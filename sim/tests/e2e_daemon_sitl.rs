@@ -1,4 +1,4 @@
-//! End-to-end acceptance of issue 5: the `ianav` daemon (in-process, `ianav::daemon::run`)
+//! End-to-end acceptance of the daemon: the `ianav` daemon (in-process, `ianav::daemon::run`)
 //! navigates the SITL vehicle (`ianav_sim::sitl::run`) at 10× real time over loopback TCP,
 //! through a relay that forwards both directions unchanged and records the daemon's byte
 //! stream. Scenario #2 (50 s warm-up, GNSS lost at mission time 100 s), 300 s of mission.
@@ -1014,7 +1014,7 @@ async fn denied_horizontal_error_equals_the_offline_ins_seeds_2_and_3() {
     }
 }
 
-/// Issue 5 item 1: the daemon's errors with a 25 Hz IMU (HIGHRES_IMU and air data at 25 Hz,
+/// IMU rate: the daemon's errors with a 25 Hz IMU (HIGHRES_IMU and air data at 25 Hz,
 /// box-averaged) versus 100 Hz, both from the `ideal` vehicle, same seeds. Run with
 /// `--ignored --nocapture` (about 38 s per run, 2 runs per seed). A measurement (the figures
 /// are in docs/E2E.md); it asserts only what the rate must not break: every sample decoded,

@@ -1,5 +1,5 @@
-//! The GNSS-denied INS flown in the simulator's loop (issue 3, point 3): guidance and control
-//! fly on the INS solution; its errors stay within the bounds the paper's INS achieves.
+//! The GNSS-denied INS flown in the simulator's loop: guidance and control fly on the INS solution;
+//! its errors stay within the bounds the paper's INS achieves.
 
 #![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
 

@@ -1,4 +1,4 @@
-//! Statistical acceptance tests of the simulated sensors (author_impl §2.1–2.5): Allan
+//! Statistical acceptance tests of the simulated sensors (docs/REFERENCES.md A2.1–A2.5): Allan
 //! deviation of the inertial noise and drift, white noise of the magnetometer, air data and
 //! GNSS, the per-run/per-aircraft error distributions, exactness with zero errors, lever arm
 //! and misalignment geometry, determinism and stream independence.
@@ -306,7 +306,7 @@ mod sensors {
     #[test]
     fn sensors_air_data_noise_is_per_sample() {
         // ỹ − x − bias has σ equal to the configured per-sample σ whatever the period
-        // (quirk 10). 40 000 samples: standard error 0.35 %, tolerance 6σ.
+        // (docs/REFERENCES.md A9.10). 40 000 samples: standard error 0.35 %, tolerance 6σ.
         for period_s in [0.01, 0.1] {
             let mut cfg = SensorsConfig::default();
             cfg.air.period_s = period_s;

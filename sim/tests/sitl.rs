@@ -1,7 +1,7 @@
-//! `ianav-sim sitl` against a minimal MAVLink client on loopback (issue 5, item 5): rates,
-//! interval requests, TIMESYNC, unit conversions against the simulator's own samples, GNSS
-//! loss, companion estimates versus truth, flying on them, and the camera frame stream.
-//! Every run is a few simulated seconds (short warm-up) so the file stays well under a minute.
+//! `ianav-sim sitl` against a minimal MAVLink client on loopback: rates, interval requests,
+//! TIMESYNC, unit conversions against the simulator's own samples, GNSS loss, companion estimates
+//! versus truth, flying on them, and the camera frame stream. Every run is a few simulated seconds
+//! (short warm-up) so the file stays well under a minute.
 #![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
 
 use std::collections::BTreeMap;

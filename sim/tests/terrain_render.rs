@@ -1,6 +1,6 @@
-//! Acceptance tests of the camera renderer over the procedural terrain (issue 4): geometry
-//! against the camera model, photometric consistency between overlapping views, feature
-//! content per zone (FAST-9, threshold 20, 4 × 4 grid), and clean errors on bad requests.
+//! Acceptance tests of the camera renderer over the procedural terrain: geometry against the camera
+//! model, photometric consistency between overlapping views, feature content per zone (FAST-9,
+//! threshold 20, 4 × 4 grid), and clean errors on bad requests.
 //!
 //! Ground points are found here independently of the renderer: marching along the exact ray
 //! with the exact ECEF → geodetic conversion and the terrain's public height function.

@@ -1,4 +1,4 @@
-//! Camera sources of the daemon (issue 5 item 4; research/mavlink.md §4):
+//! Camera sources of the daemon (docs/REFERENCES.md M4):
 //!
 //! - `frame_stream`: TCP client of the vehicle's frame stream ([`crate::io::frame_stream`]).
 //!   Exposure times are in the vehicle's clock and are mapped with the time-sync offset; frames

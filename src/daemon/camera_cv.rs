@@ -1,5 +1,5 @@
-//! V4L2 and GStreamer camera sources through OpenCV's `VideoCapture` (issue 5 item 4,
-//! research/mavlink.md §4), behind the `opencv` Cargo feature.
+//! V4L2 and GStreamer camera sources through OpenCV's `VideoCapture` (docs/REFERENCES.md M4),
+//! behind the `opencv` Cargo feature.
 //!
 //! System packages (Debian 12): `libopencv-dev clang libclang-dev` to build; at run time the
 //! OpenCV libraries, and `gstreamer1.0-plugins-base` (plus the plugins the pipeline names) for

@@ -1,4 +1,4 @@
-//! The MAVLink link tasks (research/mavlink.md §1.3–1.6, §3.4, §7): connection with
+//! The MAVLink link tasks (docs/REFERENCES.md M1.3–M1.6, M3.3–M3.4): connection with
 //! reconnection, the reader (autopilot identification, TIMESYNC, reboot detection, message →
 //! sensor events, INS initialisation), the writer, and the periodic TIMESYNC and
 //! SET_MESSAGE_INTERVAL requests.

@@ -1,4 +1,4 @@
-//! The onboard daemon (issue 5; ARCHITECTURE "The daemon"; research/mavlink.md §1, §3, §6):
+//! The onboard daemon (docs/DAEMON.md; docs/REFERENCES.md M1, M3, M6):
 //! tokio tasks around a navigation OS thread.
 //!
 //! ```text

@@ -1,6 +1,6 @@
-//! Publication of solutions (issue 5 item 3; research/mavlink.md §2.4): called by the
-//! navigation thread right after each solution, so a message leaves one queue hop after its IMU
-//! sample was processed. No clock is read: the rate uses the solutions' own times.
+//! Publication of solutions (docs/REFERENCES.md M2.2–M2.4): called by the navigation thread right
+//! after each solution, so a message leaves one queue hop after its IMU sample was processed. No
+//! clock is read: the rate uses the solutions' own times.
 //!
 //! Rate: the first solution at or after each due time is published; due times advance by
 //! `1 / output.rate_hz` of solution time (30 Hz from a 100 Hz IMU alternates 30/40 ms and

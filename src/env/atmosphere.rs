@@ -1,7 +1,7 @@
-//! ISA atmosphere with temperature offset ΔT and pressure offset Δp (the non-standard
-//! atmosphere of Gallo's simulation paper; author_impl §3.1–3.2): pressure altitude ↔ static
-//! pressure, temperature, density, geopotential ↔ geometric altitude, geometric altitude from
-//! pressure altitude.
+//! ISA atmosphere with temperature offset ΔT and pressure offset Δp (the non-standard atmosphere of
+//! Gallo's simulation paper; docs/REFERENCES.md A3.1–A3.2): pressure altitude ↔ static pressure,
+//! temperature, density, geopotential ↔ geometric altitude, geometric altitude from pressure
+//! altitude.
 //!
 //! Model (see `docs/ENVIRONMENT.md`): the pressure altitude `Hp` is the ISA altitude of the
 //! measured static pressure; the actual temperature is `T = T_ISA(Hp) + ΔT`; the actual

@@ -1,6 +1,6 @@
-//! Earth magnetic field from the World Magnetic Model (WMM2025, through the
-//! `world_magnetic_model` crate), in NED, nT (author_impl §3.6; the authors froze a 1°×1° box
-//! of WMM values — here the model itself is evaluated, optionally through a cached grid).
+//! Earth magnetic field from the World Magnetic Model (WMM2025, through the `world_magnetic_model`
+//! crate), in NED, nT (docs/REFERENCES.md A3.6; the authors froze a 1°×1° box of WMM values — here
+//! the model itself is evaluated, optionally through a cached grid).
 //!
 //! Inputs: geodetic latitude/longitude (WGS84) and the height `h_m` above the WGS84
 //! ellipsoid, which is exactly what the crate expects (`GeomagneticField::new` takes the height
@@ -251,7 +251,7 @@ mod tests {
 
     #[test]
     fn wisconsin_field_matches_the_authors_box() {
-        // author_impl §3.6: WMM2015 at 2018-01-01, 3000 m, (45°N, 90°W):
+        // docs/REFERENCES.md A3.6: WMM2015 at 2018-01-01, 3000 m, (45°N, 90°W):
         // (17455.7, −764.6, 52192.7) nT.
         let reference = Vector3::new(17_455.7, -764.6, 52_192.7);
         let p = wisconsin(3000.0);

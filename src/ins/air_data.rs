@@ -1,7 +1,7 @@
-//! Air-data filter (author_impl §1.4, `filter_air02`): 9-state EKF
+//! Air-data filter (docs/REFERENCES.md A1.4, `filter_air02`): 9-state EKF
 //! `x = [v_TAS, α, β, T, Hp, ROC, v̇_TAS, α̇, β̇]` with the kinematic model
 //! `ẋ = [v̇_TAS, α̇, β̇, 0, ROC, 0, 0, 0, 0]` and observations Pitot, vanes, thermometer and
-//! static pressure `p = p_ISA(Hp)` (§3.1). Derived output: `ΔT = T − T_ISA(Hp)`, estimated in
+//! static pressure `p = p_ISA(Hp)` (A3.1). Derived output: `ΔT = T − T_ISA(Hp)`, estimated in
 //! both phases.
 //!
 //! `A² = 0`, so `F = expm(A Δt) = I + A Δt` exactly, and the authors' Euler state step is
@@ -62,7 +62,7 @@ pub(crate) struct AirDataFilter {
 }
 
 impl AirDataFilter {
-    /// Initialise from the first sample (author_impl §1.4 `x₀`, `P₀`): airspeed, vanes,
+    /// Initialise from the first sample (docs/REFERENCES.md A1.4 `x₀`, `P₀`): airspeed, vanes,
     /// temperature and `Hp = Hp(p)` from the readings, rates zero; missing vanes take
     /// `aoa_guess_rad` and 0.
     pub fn new(cfg: &AirDataFilterConfig, sample: &AirSample, aoa_guess_rad: f64) -> Self {

@@ -1,9 +1,9 @@
-//! Attitude filter (author_impl §1.5, `filter_att02`) in error-state form.
+//! Attitude filter (docs/REFERENCES.md A1.5, `filter_att02`) in error-state form.
 //!
 //! Nominal state: `q_nb`, body rate `w_nb_b`, gyro error `E_gyr` (rad/s), magnetometer error
 //! `E_mag` (nT, body), magnetic-model error `ΔB_n = B_model − B_true` (nT, NED).
 //! Error state (18): `δx = [δθ, δw, δE_gyr, δE_mag, δΔB, δε]` with the attitude as a **right
-//! perturbation** `q_nb = q̂_nb ∘ Exp(δθ)` (CONVENTIONS.md), i.e. in the body tangent space
+//! perturbation** `q_nb = q̂_nb ∘ Exp(δθ)` (docs/ARCHITECTURE.md), i.e. in the body tangent space
 //! where the paper's attitude error `Log(q_true⁻¹ ∘ q_est)` lives. `ε` is not the authors':
 //! it is the slowly varying error of another estimator's attitude that the transfer alignment
 //! fuses (`q_ref = q_nb ∘ Exp(ε + n)`, first-order Gauss–Markov, docs/INS.md), so that an
@@ -63,7 +63,7 @@ pub(crate) struct ReferenceErrorModel {
 }
 
 /// What the attitude filter takes from the navigation output of the previous step
-/// (author_impl §1.5: position, ground velocity, low-frequency wind, accelerometer error),
+/// (docs/REFERENCES.md A1.5: position, ground velocity, low-frequency wind, accelerometer error),
 /// with the Earth models evaluated there.
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct AttitudeContext {
@@ -79,7 +79,7 @@ pub(crate) struct AttitudeContext {
     pub b_model_n: Option<Vector3<f64>>,
 }
 
-/// Initial estimates of the attitude filter and their σ (author_impl §1.9).
+/// Initial estimates of the attitude filter and their σ (docs/REFERENCES.md A1.9).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct AttitudeInit {
     pub q_nb: UnitQuaternion<f64>,
@@ -107,7 +107,8 @@ pub(crate) struct AttitudeFilter {
 }
 
 impl AttitudeFilter {
-    /// Filter at the initial estimates; P₀ per author_impl §1.5 (attitude σ from the config).
+    /// Filter at the initial estimates; P₀ per docs/REFERENCES.md A1.5 (attitude σ from the
+    /// config).
     pub fn new(
         cfg: &AttitudeFilterConfig,
         init: &AttitudeInit,

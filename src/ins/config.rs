@@ -1,8 +1,8 @@
 //! INS configuration (`config/ins.toml`): the process noise Q̃, observation noise R and initial
-//! covariance P₀ of the authors' filters (author_impl §1.4–1.7, values and units restated in
-//! `docs/INS.md`), the GNSS-loss logic, and the bounds of the input validation.
+//! covariance P₀ of the authors' filters (docs/REFERENCES.md A1.4–A1.7, values and units restated
+//! in `docs/INS.md`), the GNSS-loss logic, and the bounds of the input validation.
 //!
-//! The authors' Q̃ is a constant *per-step* matrix at 100 Hz (§1.3). To run at any IMU rate the
+//! The authors' Q̃ is a constant *per-step* matrix at 100 Hz (A1.3). To run at any IMU rate the
 //! INS scales every Q̃ entry by `Δt / reference_period_s` (a constant spectral density), and the
 //! white-noise part of the IMU observation noise by `reference_period_s / Δt_imu` (per-sample
 //! white-noise variance ∝ 1/Δt). At `Δt = reference_period_s` = 0.01 s the filters are exactly
@@ -28,7 +28,7 @@ pub enum InsConfigError {
     },
 }
 
-/// Air-data filter (author_impl §1.4, `filter_air02`).
+/// Air-data filter (docs/REFERENCES.md A1.4, `filter_air02`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AirDataFilterConfig {
@@ -89,7 +89,7 @@ impl Default for AirDataFilterConfig {
     }
 }
 
-/// Attitude filter (author_impl §1.5, `filter_att02`), error-state form (see `attitude.rs`).
+/// Attitude filter (docs/REFERENCES.md A1.5, `filter_att02`), error-state form (see `attitude.rs`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AttitudeFilterConfig {
@@ -116,7 +116,7 @@ pub struct AttitudeFilterConfig {
     /// `r_accel_turbulence_ref_tas_mps`, (m/s²)²: the neglected time derivative of the
     /// air-relative velocity, whose residual in turbulence is coloured (1–10 s), stated as its
     /// equivalent white noise at the filter's 100 Hz. Scaled by `(|v − v_lf| / V_ref)²`, the
-    /// frozen-field scaling of gust accelerations (zero at rest). docs/INS.md §3.
+    /// frozen-field scaling of gust accelerations (zero at rest). docs/INS.md, deviation 10.
     pub r_accel_turbulence_m2ps4: [f64; 3],
     /// Airspeed at which `r_accel_turbulence_m2ps4` holds, m/s.
     pub r_accel_turbulence_ref_tas_mps: f64,
@@ -152,8 +152,8 @@ impl Default for AttitudeFilterConfig {
     }
 }
 
-/// Position filter with GNSS (author_impl §1.6, `filter_gps01`) and GNSS-denied propagation
-/// (§1.7, `filter_pos02B`).
+/// Position filter with GNSS (docs/REFERENCES.md A1.6, `filter_gps01`) and GNSS-denied propagation
+/// (A1.7, `filter_pos02B`).
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PositionFilterConfig {
@@ -189,7 +189,7 @@ pub struct PositionFilterConfig {
     /// GNSS is available, s (running means until it is full). It averages out the
     /// low-frequency turbulence (correlation time `L_u/V` ≈ 18 s) like a first-order filter
     /// of half its length, and forgets a wind that changed (the climb, the take-off roll)
-    /// after one window; docs/INS.md §5.
+    /// after one window; docs/INS.md, deviation 12.
     pub lpf_window_s: f64,
     /// Integral scales of the turbulence along the body axes `[x, y, z]`, m: its correlation
     /// time is `scale / airspeed`. MIL-F-8785C Dryden above 2,000 ft: `L_u = 2 L_v = 2 L_w =
@@ -198,7 +198,7 @@ pub struct PositionFilterConfig {
     pub turbulence_integral_scale_m: [f64; 3],
     /// Slowly varying GNSS position error per axis (ionosphere) that the filter cannot
     /// average out, added to the reported position variance, to the altitude variance behind
-    /// Δp and to the dead-reckoning start, m (author_impl §2.5: 8 m at the start of a run).
+    /// Δp and to the dead-reckoning start, m (docs/REFERENCES.md A2.5: 8 m at the start of a run).
     pub gnss_bias_sigma_m: f64,
 }
 
@@ -227,7 +227,7 @@ impl Default for PositionFilterConfig {
 /// Transfer alignment: while GNSS is available the attitude filter also fuses another
 /// estimator's attitude ([`crate::sensors::RefAttitude`], the autopilot's GNSS-aided ATTITUDE),
 /// which makes the gyro and magnetometer errors observable within seconds of a start in
-/// flight with unknown sensor errors (docs/INS.md §8). Never used after GNSS loss, when the
+/// flight with unknown sensor errors (docs/INS.md "Starting in flight"). Never used after GNSS loss, when the
 /// reference's heading is only as good as its compass.
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]

@@ -1,7 +1,7 @@
-//! Generic EKF mechanics shared by the INS filters (author_impl §1.3): covariance prediction
+//! Generic EKF mechanics shared by the INS filters (docs/REFERENCES.md A1.3): covariance prediction
 //! `P⁻ = F P Fᵀ + Q̃`, the measurement update with the Joseph form
 //! `P⁺ = (I − KH) P⁻ (I − KH)ᵀ + K R Kᵀ` and an optional chi-square innovation gate, and the
-//! first-order discrete low-pass filter `LPF_Tf` of §1.3.
+//! first-order discrete low-pass filter `LPF_Tf` of A1.3.
 //!
 //! The authors invert `S` explicitly; here `S` is factored by Cholesky, which doubles as the
 //! positive-definiteness check: an update whose `S` is not positive definite, or whose result
@@ -100,7 +100,7 @@ pub(crate) fn symmetrize<const N: usize>(p: &mut SMatrix<f64, N, N>) {
     }
 }
 
-/// First-order discrete low-pass filter (author_impl §1.3, "LPF_Tf"):
+/// First-order discrete low-pass filter (docs/REFERENCES.md A1.3, "LPF_Tf"):
 /// `y_k = β y_{k−1} + α u_k` with `α = Δt/(T_f + Δt)`, `β = T_f/(T_f + Δt)`, initialised with
 /// an explicit value. Δt is passed at each step, so the filter is rate independent.
 ///

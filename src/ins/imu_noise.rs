@@ -1,7 +1,7 @@
 //! IMU noise check: the white noise of the incoming gyro and accelerometer samples, measured in
 //! flight, against the noise the INS is configured for (docs/INS.md "IMU noise check"): the gyro
-//! R of the attitude filter and the velocity random walk Q̃ of the position filter (paper §1.6
-//! and §1.7 take both from the authors' sensors).
+//! R of the attitude filter and the velocity random walk Q̃ of the position filter (the authors
+//! take both from their sensors, docs/REFERENCES.md A1.5–A1.7).
 //!
 //! Why: an INS that believes its IMU far quieter than it is over-trusts its propagation. Beside
 //! PX4 SIH (gyro σ 0.07 rad/s per sample against the paper's 7.5e-4) the GNSS velocity

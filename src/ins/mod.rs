@@ -1,6 +1,6 @@
-//! GNSS-denied EKF inertial navigation (paper: the INS of Gallo & Barrientos; author_impl §1):
-//! a cascade of three filters stepped on every IMU sample — air data (§1.4), attitude (§1.5),
-//! and position with GNSS (§1.6) or, after GNSS loss, the GNSS-denied propagation (§1.7).
+//! GNSS-denied EKF inertial navigation (paper: the INS of Gallo & Barrientos; docs/REFERENCES.md A1):
+//! a cascade of three filters stepped on every IMU sample — air data (A1.4), attitude (A1.5),
+//! and position with GNSS (A1.6) or, after GNSS loss, the GNSS-denied propagation (A1.7).
 //! Design, models, noise values and the deviations from the authors' code: `docs/INS.md`.
 //!
 //! ```text
@@ -60,7 +60,7 @@ pub const COLD_E_ACC_SIGMA_MPS2: f64 = 0.157;
 /// Cold-start σ of the magnetometer error per axis, nT (offset 500 nT ⊕ hard iron 175 nT).
 pub const COLD_E_MAG_SIGMA_NT: f64 = 529.7;
 /// Cold-start σ of the magnetic-model error `ΔB_n` (N, E, D), nT (WMM uncertainty,
-/// author_impl §3.6).
+/// docs/REFERENCES.md A3.6).
 pub const COLD_DELTA_B_SIGMA_NT: [f64; 3] = [138.0, 89.0, 165.0];
 
 /// Why the INS could not be built.
@@ -82,7 +82,7 @@ pub enum InsError {
     Magnetic(#[from] MagneticError),
 }
 
-/// Initial estimates (author_impl §1.9: the simulator draws them around the truth) and their
+/// Initial estimates (docs/REFERENCES.md A1.9: the simulator draws them around the truth) and their
 /// one-sigma uncertainties, which set the filters' P₀.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct InsInit {
@@ -339,7 +339,7 @@ enum PositionMode {
     Denied(Box<DeniedNav>),
 }
 
-/// Outputs of the previous step used by the attitude filter (author_impl §1.5).
+/// Outputs of the previous step used by the attitude filter (docs/REFERENCES.md A1.5).
 #[derive(Debug, Clone, Copy)]
 struct PrevOutputs {
     pos: Geodetic,

@@ -1,6 +1,6 @@
-//! Position filter with GNSS (author_impl §1.6, `filter_gps01`), the GNSS-phase estimates of
-//! the pressure offset and the low-frequency wind (§1.6), and the GNSS-denied propagation
-//! (§1.7, `filter_pos` + `filter_pos02B`).
+//! Position filter with GNSS (docs/REFERENCES.md A1.6, `filter_gps01`), the GNSS-phase estimates of
+//! the pressure offset and the low-frequency wind (A1.6), and the GNSS-denied propagation
+//! (A1.7, `filter_pos` + `filter_pos02B`).
 //!
 //! **GNSS filter.** Nominal state: geodetic position, NED velocity `v_n`, specific force
 //! `f_ib_b`, accelerometer error `E_acc`. Process (explicit Euler as the authors):
@@ -119,7 +119,7 @@ pub(crate) fn air_velocity_n(
     (c_nb * v_b, (cov + cov.transpose()) * 0.5)
 }
 
-/// Inputs of the GNSS filter's initialisation (author_impl §1.6 `x₀`, `P₀`).
+/// Inputs of the GNSS filter's initialisation (docs/REFERENCES.md A1.6 `x₀`, `P₀`).
 #[derive(Debug, Clone, Copy)]
 pub(crate) struct PositionInit {
     pub pos: Geodetic,
@@ -604,7 +604,7 @@ impl GnssPhaseEstimates {
 }
 
 /// Barometric geometric altitude `h(Hp, ΔT, Δp)` and its partial derivatives
-/// `(∂h/∂Hp, ∂h/∂ΔT, ∂h/∂Δp)` (author_impl §3.1–3.2).
+/// `(∂h/∂Hp, ∂h/∂ΔT, ∂h/∂Δp)` (docs/REFERENCES.md A3.1–A3.2).
 ///
 /// `H` is linear in ΔT, so `∂H/∂ΔT = H(ΔT = 1) − H(ΔT = 0)` exactly;
 /// `∂H/∂Hp = G'(Hp)`, `∂H/∂Δp = −G'(Hp_MSL)/(dp/dHp)(Hp_MSL)`; `dh/dH = (R/(R − H))²`.
@@ -644,7 +644,7 @@ const DR_G: usize = 6;
 const DR_B: usize = 9;
 const DR_A: usize = 12;
 
-/// The GNSS-denied navigation (author_impl §1.7, variant 02B).
+/// The GNSS-denied navigation (docs/REFERENCES.md A1.7, variant 02B).
 ///
 /// Velocity error model (docs/INS.md "GNSS-denied covariance"): with the estimate
 /// `v̂ = ŵ + Ĉ v̂_air` and the truth `v = w + C (v_air + v_gust)`,
@@ -880,7 +880,7 @@ impl DeniedNav {
             self.pos.h_m = h;
             self.h_var = h_var;
         }
-        // Horizontal: previous-step radii and latitude, current height (author_impl §1.7).
+        // Horizontal: previous-step radii and latitude, current height (docs/REFERENCES.md A1.7).
         let (m, n) = (
             wgs84::radius_meridian_m(self.pos.lat_rad),
             wgs84::radius_prime_vertical_m(self.pos.lat_rad),

@@ -9,7 +9,7 @@
 //! exact; the position is integrated with RK4 of the geodetic rates (error ≈ (|v|Δt)⁵/R⁴,
 //! nil). The IMU outputs the exact `w_ib_b = w_nb_b + C_bn (w_ie + w_en)` and
 //! `f_ib_b = C_bn (v̇_n − g + (2 w_ie + w_en) × v_n)` plus constant errors and white noise
-//! with the "base" densities of author_impl §2; air data and the magnetometer (WMM minus a
+//! with the "base" densities of docs/REFERENCES.md A2; air data and the magnetometer (WMM minus a
 //! model error) likewise. The air-relative velocity is constant in body axes, so the attitude
 //! filter's accelerometer model (which neglects its derivative) is exact here.
 
@@ -22,18 +22,18 @@ use crate::env::atmosphere::{self, AtmosphereOffsets};
 use crate::math::so3;
 use crate::sensors::RefAttitude;
 
-/// Gyro white-noise density, rad/s^0.5 (author_impl §2.1: 0.043 °/s per sample at 100 Hz).
+/// Gyro white-noise density, rad/s^0.5 (docs/REFERENCES.md A2.1: 0.043 °/s per sample at 100 Hz).
 const GYRO_DENSITY: f64 = 7.504_915_783_575_618e-5;
 /// Accelerometer white-noise density, m/s^1.5 (4.83e-3 m/s² per sample at 100 Hz).
 const ACCEL_DENSITY: f64 = 4.83e-4;
 /// Magnetometer white-noise density, nT·s^0.5 (50 nT per sample at 100 Hz).
 const MAG_DENSITY: f64 = 5.0;
-/// Air-data per-sample noise σ (author_impl §2.4).
+/// Air-data per-sample noise σ (docs/REFERENCES.md A2.4).
 const TAS_SIGMA: f64 = 0.333;
 const VANE_SIGMA_DEG: f64 = 0.333;
 const P_SIGMA: f64 = 100.0;
 const T_SIGMA: f64 = 0.05;
-/// GNSS white noise σ (author_impl §2.5, without the ionospheric walk).
+/// GNSS white noise σ (docs/REFERENCES.md A2.5, without the ionospheric walk).
 const GNSS_HOR: f64 = 2.12;
 const GNSS_VER: f64 = 4.25;
 const GNSS_VEL: f64 = 0.0741;
@@ -301,7 +301,7 @@ impl Synth {
         ev
     }
 
-    /// Initial estimates as author_impl §1.9: attitude off by 0.1° about a fixed axis, sensor
+    /// Initial estimates as docs/REFERENCES.md A1.9: attitude off by 0.1° about a fixed axis, sensor
     /// errors off by 1 % (σ = 1 % of the true value), magnetic-model error off by 10 %,
     /// position from a GNSS-like fix.
     fn init(&mut self) -> InsInit {
@@ -330,7 +330,7 @@ impl Synth {
     }
 }
 
-/// Attitude error `Log(q_true⁻¹ ∘ q_est)` (CONVENTIONS.md), rad, body tangent.
+/// Attitude error `Log(q_true⁻¹ ∘ q_est)` (docs/ARCHITECTURE.md "Conventions"), rad, body tangent.
 fn att_err(truth: &Truth, sol: &InsSolution) -> Vector3<f64> {
     so3::minus(&sol.q_nb, &truth.q_nb)
 }
@@ -389,7 +389,7 @@ fn new_ins(synth: &mut Synth) -> Ins {
 }
 
 /// Number of filter σ an error may reach. The filters' Q and R derive from the sensor noise
-/// (config/ins.toml, author_impl §1–2). Over 12-seed trials of these scenarios the filters
+/// (config/ins.toml, docs/REFERENCES.md A1–A2). Over 12-seed trials of these scenarios the filters
 /// are consistent or conservative on average (mean z² per axis: position 0.4–3.2, ≈ 1.2 over
 /// the runs; velocity ≈ 0.5; attitude 0.05–0.4, the authors' accelerometer R carrying
 /// 0.67–0.86 (m/s²)² of turbulence that these data do not have; Hp 0.6–0.9, ROC ≈ 0.25,
@@ -432,7 +432,7 @@ fn synth_wind() -> Vector3<f64> {
     Vector3::new(3.0, -4.0, 0.0)
 }
 
-/// Paper-level attitude requirement (issue 3: attitude-norm error ≤ 0.3°), rad.
+/// Paper-level attitude requirement (attitude-norm error ≤ 0.3°, the INS-in-the-loop acceptance), rad.
 const ATT_NORM_MAX_RAD: f64 = 0.3 * std::f64::consts::PI / 180.0;
 
 /// Attitude, velocity and position checks shared by the flight scenarios.
@@ -1036,7 +1036,7 @@ fn runs_at_25_50_and_200_hz() {
     }
 }
 
-/// Issue 5: ArduPilot streams the IMU at 25 Hz at most, PX4 at 50–100 Hz. The same turn, the
+/// ArduPilot streams the IMU at 25 Hz at most, PX4 at 50–100 Hz. The same turn, the
 /// same sensor error draws, GNSS for 100 s then 50 s denied: errors at the end at 25 Hz versus
 /// 100 Hz over 4 seeds (figures printed with `--nocapture`, reported in docs/DAEMON.md). Each
 /// run must stay consistent with its own covariance (`check_consistent`, 5σ), and the 25 Hz

@@ -1,5 +1,5 @@
-//! Camera frame stream between the vehicle (the simulator in SITL) and the daemon (issue 5,
-//! "Camera sources"; research/mavlink.md §4): length-prefixed 8-bit grey frames over a byte
+//! Camera frame stream between the vehicle (the simulator in SITL) and the daemon (docs/DAEMON.md
+//! "Camera sources"; docs/REFERENCES.md M4): length-prefixed 8-bit grey frames over a byte
 //! stream (loopback TCP), timestamped in the vehicle's clock.
 //!
 //! Wire format, little-endian, one record per frame:

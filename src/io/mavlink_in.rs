@@ -1,6 +1,6 @@
-//! Autopilot MAVLink messages → [`SensorEvent`]s in SI units (issue 5 item 1; common.xml and
-//! ardupilotmega.xml field units; research/mavlink.md §3). Pure: no I/O, no clock; the caller
-//! maps the autopilot's timestamps to the daemon's clock through [`ApTime`].
+//! Autopilot MAVLink messages → [`SensorEvent`]s in SI units (common.xml and ardupilotmega.xml
+//! field units; docs/REFERENCES.md M3.1). Pure: no I/O, no clock; the caller maps the autopilot's
+//! timestamps to the daemon's clock through [`ApTime`].
 //!
 //! Conversions (all checked in the tests with round numbers):
 //! - IMU axes: PX4 and ArduPilot report the IMU in the vehicle's FRD body axes, which are our

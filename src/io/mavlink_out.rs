@@ -1,6 +1,6 @@
-//! Navigation solution → MAVLink messages for the autopilot (issue 5 item 3; common.xml
-//! ODOMETRY #331, GPS_INPUT #232, VISION_POSITION_ESTIMATE #102, SET_GPS_GLOBAL_ORIGIN #48,
-//! HEARTBEAT, STATUSTEXT, COMMAND_LONG; research/mavlink.md §2). Pure builders.
+//! Navigation solution → MAVLink messages for the autopilot (common.xml ODOMETRY #331, GPS_INPUT
+//! #232, VISION_POSITION_ESTIMATE #102, SET_GPS_GLOBAL_ORIGIN #48, HEARTBEAT, STATUSTEXT,
+//! COMMAND_LONG; docs/REFERENCES.md M2). Pure builders.
 //!
 //! - Local positions use the autopilots' own projection ([`MapProjection`], azimuthal
 //!   equidistant on the 6,371 km sphere) about the origin announced by SET_GPS_GLOBAL_ORIGIN.
@@ -215,7 +215,7 @@ pub fn gps_input(
 
 /// SET_GPS_GLOBAL_ORIGIN at `origin`. The message is deprecated in favour of
 /// MAV_CMD_DO_SET_GLOBAL_ORIGIN (2025-04), but it is the one PX4 and ArduPilot releases in the
-/// field handle (research/mavlink.md §6.5). The height is ellipsoidal, sent as MSL with N.
+/// field handle (docs/REFERENCES.md M2.1–M2.3). The height is ellipsoidal, sent as MSL with N.
 #[allow(deprecated)]
 pub fn set_gps_global_origin(
     target_system: u8,

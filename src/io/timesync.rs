@@ -1,6 +1,6 @@
-//! Autopilot time → the daemon's monotonic clock (issue 5 item 1; MAVLink "Time
-//! Synchronization Protocol v2", TIMESYNC #111; research/mavlink.md §3.4). Pure: every
-//! function takes the current time of the daemon's clock as an argument.
+//! Autopilot time → the daemon's monotonic clock (MAVLink "Time Synchronization Protocol v2",
+//! TIMESYNC #111; docs/REFERENCES.md M3.4). Pure: every function takes the current time of the
+//! daemon's clock as an argument.
 //!
 //! - Both sides of TIMESYNC: a request `tc1 = 0` from the autopilot is answered with our time
 //!   in `tc1` and its `ts1` echoed; our requests carry our time in `ts1`, and a response gives

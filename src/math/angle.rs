@@ -1,5 +1,5 @@
-//! Angle wrapping, the one implementation used by the whole workspace (CONVENTIONS: radians
-//! inside code; degrees only at configuration and output boundaries).
+//! Angle wrapping, the one implementation used by the whole workspace (docs/ARCHITECTURE.md
+//! "Conventions": radians inside code; degrees only at configuration and output boundaries).
 //!
 //! Convention: every function maps onto the interval that is *open below and closed above*,
 //! `(−π, π]` in radians and `(−180°, 180°]` in degrees, so `+π` and `−π` (or ±180°) both

@@ -1,4 +1,4 @@
-//! The autopilots' local horizontal frame (research/mavlink.md §2.2): PX4 (and ArduPilot's
+//! The autopilots' local horizontal frame (docs/REFERENCES.md M2.2): PX4 (and ArduPilot's
 //! `Location` offsets for small distances) express local NED positions by an azimuthal
 //! equidistant projection on a sphere of radius [`EARTH_RADIUS_M`] around a reference point,
 //! with down = reference altitude − altitude. A companion that publishes `ODOMETRY` in

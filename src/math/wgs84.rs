@@ -1,4 +1,4 @@
-//! WGS84 ellipsoid (author_impl §3.5, `env/geo`): geodetic ↔ ECEF, NED frame orientation,
+//! WGS84 ellipsoid (docs/REFERENCES.md A3.5, `env/geo`): geodetic ↔ ECEF, NED frame orientation,
 //! radii of curvature, Somigliana normal gravity with the second-order height correction, Earth
 //! rotation and transport rates, geodetic rates and exact local NED differences.
 //!
@@ -20,9 +20,9 @@ pub const OMEGA_IE_RPS: f64 = 7.292_115e-5;
 pub const B_M: f64 = A_M * (1.0 - F);
 /// First eccentricity squared `e² = f (2 − f)`.
 pub const E2: f64 = F * (2.0 - F);
-/// Normal gravity at the equator on the ellipsoid `g_e`, m/s² (author_impl §3.5).
+/// Normal gravity at the equator on the ellipsoid `g_e`, m/s² (docs/REFERENCES.md A3.5).
 pub const GE_MPS2: f64 = 9.780_325_335_9;
-/// Normal gravity at the poles on the ellipsoid `g_p`, m/s² (author_impl §3.5).
+/// Normal gravity at the poles on the ellipsoid `g_p`, m/s² (docs/REFERENCES.md A3.5).
 pub const GP_MPS2: f64 = 9.832_184_937_8;
 
 /// Somigliana constant `k = b g_p / (a g_e) − 1`.
@@ -143,7 +143,7 @@ pub fn radius_prime_vertical_m(lat_rad: f64) -> f64 {
 /// Includes the centrifugal term; points along NED down.
 ///
 /// `g = g_e (1 + k sin²φ)/√(1 − e² sin²φ) · [1 − (2/a)(1 + f + m − 2f sin²φ) h + 3h²/a²]`
-/// (author_impl §3.5).
+/// (docs/REFERENCES.md A3.5).
 pub fn normal_gravity_mps2(lat_rad: f64, h_m: f64) -> f64 {
     let s2 = lat_rad.sin().powi(2);
     let g0 = GE_MPS2 * (1.0 + SOMIGLIANA_K * s2) / (1.0 - E2 * s2).sqrt();

@@ -1,4 +1,4 @@
-//! Down-looking pinhole camera (author_impl §2.6; paper appendix "Optical Flow").
+//! Down-looking pinhole camera (docs/REFERENCES.md A2.6; paper appendix "Optical Flow").
 //!
 //! - Ideal pinhole without distortion: `u = f x/z + c_u`, `v = f y/z + c_v` (paper eqs. of
 //!   the image frame), with `f = focal length / pixel pitch` in pixels. The default is the
@@ -17,7 +17,7 @@
 //!   optical axis is body z (down): nadir-looking. The default yaw of 90° (the authors'
 //!   `flag_rotate`) puts image x along the right wing and image "up" (−y) forward, so the long
 //!   1024-px side lies along the track. True angles = nominal + 0.1°·N, estimated = true +
-//!   0.01°·N; lens position estimated = true + 0.002 m·N per axis (§2.6). The normal draws
+//!   0.01°·N; lens position estimated = true + 0.002 m·N per axis (A2.6). The normal draws
 //!   come from the simulator's `camera_mounting` stream; this module only applies them.
 
 use nalgebra::{Isometry3, Matrix2x3, Matrix2x6, Translation3, UnitQuaternion, Vector2, Vector3};
@@ -62,7 +62,7 @@ fn check(
     }
 }
 
-/// Camera intrinsics as configured (author_impl §2.6).
+/// Camera intrinsics as configured (docs/REFERENCES.md A2.6).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct CameraConfig {
@@ -339,7 +339,8 @@ impl Mounting {
     }
 }
 
-/// Mounting configuration: nominal angles, lens position and the error model of §2.6.
+/// Mounting configuration: nominal angles, lens position and the error model
+/// (docs/REFERENCES.md A2.6).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MountingConfig {
@@ -446,9 +447,9 @@ impl MountingConfig {
         }
     }
 
-    /// True and estimated mountings for the standard normal draws `n` (§2.6): true angles =
-    /// nominal + σ_true·N, estimated angles = true + σ_est·N, true lens position = nominal,
-    /// estimated = true + σ_pos·N.
+    /// True and estimated mountings for the standard normal draws `n` (docs/REFERENCES.md A2.6):
+    /// true angles = nominal + σ_true·N, estimated angles = true + σ_est·N, true lens position =
+    /// nominal, estimated = true + σ_pos·N.
     pub fn with_errors(&self, n: &MountingDraws) -> MountingPair {
         let mut true_deg = self.euler_bc_deg;
         let mut est_deg = [0.0; 3];
@@ -511,7 +512,7 @@ mod tests {
         assert!((cam.f_px() - 19.0e-3 / 17.0e-6).abs() < 1e-9);
         assert!((cam.f_px() - 1117.647).abs() < 1e-3);
         assert_eq!(cam.principal_point_px(), Vector2::new(383.5, 511.5));
-        // author_impl §2.6: vfov 49.2255°, hfov 37.9°.
+        // docs/REFERENCES.md A2.6: vfov 49.2255°, hfov 37.9°.
         assert!((cam.vertical_fov_rad().to_degrees() - 49.2255).abs() < 1e-3);
         assert!((cam.horizontal_fov_rad().to_degrees() - 37.9).abs() < 0.05);
     }

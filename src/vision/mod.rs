@@ -1,13 +1,14 @@
 //! Visual navigation: the down-looking camera shared by the simulator's renderer and the
 //! (coming) semi-direct visual odometry of the paper's sections "Visual Navigation" and
-//! "Optical Flow" (appendix), with the numbers of `research/author_impl.md` §2.6.
+//! "Optical Flow" (appendix), with the numbers of docs/REFERENCES.md A2.6.
 //!
 //! - [`camera`]: ideal pinhole (768 × 1024 px, f = 19 mm, 17 µm pixels), projection and
 //!   back-projection, the paper's optical-flow Jacobian, image-pyramid geometry, and the
 //!   body → camera mounting `zeta_bc` with its true-versus-estimated error model.
 //!
-//! Frames follow CONVENTIONS: camera `C` has z along the optical axis (out of the lens), x along
-//! image columns (right), y along image rows (down); image coordinates `(u, v)` are in pixels
-//! with integer values at pixel *centres*, so the image spans `[-0.5, W - 0.5] × [-0.5, H - 0.5]`.
+//! Frames follow docs/ARCHITECTURE.md ("Conventions"): camera `C` has z along the optical axis (out
+//! of the lens), x along image columns (right), y along image rows (down); image coordinates
+//! `(u, v)` are in pixels with integer values at pixel *centres*, so the image spans
+//! `[-0.5, W - 0.5] × [-0.5, H - 0.5]`.
 
 pub mod camera;

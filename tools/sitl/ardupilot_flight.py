@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""One measured ArduPlane SITL flight beside the ianav daemon (issue 13).
+"""One measured ArduPlane SITL flight beside the ianav daemon.
 
 Starts ArduPlane SITL (plane model, default parameters plus the ones set in `sitl_params`),
 optionally the ianav daemon, and routes MAVLink between the daemon and SITL's SERIAL1 so that

@@ -1,5 +1,5 @@
 //! Actuators: travel and rate limits of the control surfaces and throttle. The authors'
-//! simulator set the controls instantly (author_impl §1.2, §9 item 8); here the commanded
+//! simulator set the controls instantly (docs/REFERENCES.md A1.2, A9.8); here the commanded
 //! positions pass through rate and travel limiters (no lag), which is what servos with a
 //! saturated speed do.
 

@@ -1,6 +1,6 @@
-//! Stability-derivative aerodynamic model (replaces the authors' table model of author_impl
-//! §4.2 with coefficients derived from the geometry by textbook estimation methods; the
-//! derivations are in `docs/AIRCRAFT.md`).
+//! Stability-derivative aerodynamic model (replaces the authors' table model of docs/REFERENCES.md
+//! A4.2 with coefficients derived from the geometry by textbook estimation methods; the derivations
+//! are in `docs/AIRCRAFT.md`).
 //!
 //! Axes: lift, drag and side force act along the **wind axes** (drag along −V, lift in the
 //! symmetry plane normal to V, side force normal to both), so a model without drag does no

@@ -1,5 +1,5 @@
 //! Six-degree-of-freedom rigid-body equations of motion on the rotating WGS84 Earth
-//! (author_impl §4.4) and their classical fourth-order Runge–Kutta integration.
+//! (docs/REFERENCES.md A4.4) and their classical fourth-order Runge–Kutta integration.
 //!
 //! State: geodetic position, ground velocity viewed in body `v^b = C_bn v^n`, attitude
 //! `q_nb`, inertial angular velocity `ω_ib^b`, mass. From `v̇^n = C_nb f + g^n − (2ω_ie^n +

@@ -1,15 +1,15 @@
-//! Mass, centre of gravity and inertia with fuel burn (author_impl §4.1): the CG position and
-//! the inertia tensor are interpolated linearly in the mass ratio
-//! `r = (m_full − m)/(m_full − m_empty)` between the full-tank and empty-tank values; the
-//! inertia tensor is symmetric about the body x–z plane, so it has one product of inertia
-//! and a closed-form inverse.
+//! Mass, centre of gravity and inertia with fuel burn (docs/REFERENCES.md A4.1): the CG position
+//! and the inertia tensor are interpolated linearly in the mass ratio
+//! `r = (m_full − m)/(m_full − m_empty)` between the full-tank and empty-tank values; the inertia
+//! tensor is symmetric about the body x–z plane, so it has one product of inertia and a closed-form
+//! inverse.
 
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
 use super::AircraftError;
 
-/// Mass properties at full and empty tank (author_impl §4.1).
+/// Mass properties at full and empty tank (docs/REFERENCES.md A4.1).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MassParams {

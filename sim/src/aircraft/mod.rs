@@ -1,4 +1,4 @@
-//! The simulated aircraft (author_impl §4): a ~20 kg piston-engine fixed-wing UAV with a
+//! The simulated aircraft (docs/REFERENCES.md A4): a ~20 kg piston-engine fixed-wing UAV with a
 //! stability-derivative aerodynamic model, engine and propeller, mass and inertia with fuel
 //! burn, actuators, and the 6-DOF equations of motion on the rotating WGS84 Earth.
 //!
@@ -151,7 +151,7 @@ pub enum AircraftError {
 #[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AircraftParams {
-    /// Mass at the start of a flight, kg (author_impl §5.3: 19.5 kg).
+    /// Mass at the start of a flight, kg (docs/REFERENCES.md A5.3: 19.5 kg).
     pub initial_mass_kg: f64,
     /// Mass, CG and inertia.
     pub mass: MassParams,

@@ -1,4 +1,4 @@
-//! Piston engine and fixed-pitch propeller (author_impl §4.3): shaft power with altitude
+//! Piston engine and fixed-pitch propeller (docs/REFERENCES.md A4.3): shaft power with altitude
 //! lapse `P = P_max·min(δ_T, δ/√θ)` (corner rounded), analytic propeller curves C_T(J),
 //! C_P(J), shaft speed solved every evaluation from `C_P(J)·ρ n³ D⁵ = P` by Newton's method,
 //! thrust along body x, torque reaction `−P/(2π n)` about x, fuel flow `c_f·P`.
@@ -341,7 +341,7 @@ mod tests {
         assert!((prop.c_thrust(0.0) - 0.125).abs() < 1e-15);
         assert!(prop.c_thrust(1.1).abs() < 1e-15);
         assert!((prop.c_power(0.0) - 0.075).abs() < 1e-15);
-        // Peak efficiency 0.75–0.80 at J 0.7–0.85 (brief), located on a fine grid.
+        // Peak efficiency 0.75–0.80 at J 0.7–0.85 (design target), located on a fine grid.
         let (eta_max, j_max) = (1..1100)
             .map(|i| {
                 let j = f64::from(i) * 1e-3;

@@ -1,4 +1,4 @@
-//! Configuration of the guidance and control loops (author_impl §5.2 structure, gains tuned
+//! Configuration of the guidance and control loops (docs/REFERENCES.md A5.2 structure, gains tuned
 //! for our aircraft — see `docs/CONTROL.md`), loaded from `config/control.toml`.
 //!
 //! Units in the file: angles in **degrees**, altitudes in m, speeds in m/s, times in s. Each
@@ -93,7 +93,7 @@ impl PidConfig {
 }
 
 /// Time constants of the first-order "ramp" filters that smooth each primary target
-/// (author_impl §5.2), s.
+/// (docs/REFERENCES.md A5.2), s.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct RampConfig {

@@ -1,4 +1,4 @@
-//! Flight controller (author_impl §5.2): primary PID loops throttle ← airspeed, elevator ←
+//! Flight controller (docs/REFERENCES.md A5.2): primary PID loops throttle ← airspeed, elevator ←
 //! pitch θ, ailerons ← bank ξ, rudder ← sideslip β (+ yaw damper); secondary loops pressure
 //! altitude → θ, air path angle γ_TAS → θ and ground-track bearing χ → ξ; first-order ramp
 //! filters on every primary target. Runs on the navigation estimate, never on truth.

@@ -1,4 +1,4 @@
-//! Guidance (author_impl §5.1): a mission is a list of [`Operation`]s, each ended by its
+//! Guidance (docs/REFERENCES.md A5.1): a mission is a list of [`Operation`]s, each ended by its
 //! [`Trigger`]; plus the flight-path quantities guidance and control read off the navigation
 //! estimate (Euler rates, ground-track bearing χ, air path angle γ_TAS; the Euler angles
 //! themselves come from [`ianav::math::so3::euler_zyx`]).

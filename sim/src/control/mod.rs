@@ -1,4 +1,4 @@
-//! Guidance and control (author_impl §5), run at 50 Hz on the *navigation estimate*: a
+//! Guidance and control (docs/REFERENCES.md A5), run at 50 Hz on the *navigation estimate*: a
 //! mission is a list of operations, each fixing a target per channel and a trigger that ends
 //! it; PID loops turn targets into throttle and surface commands.
 

@@ -1,4 +1,4 @@
-//! Discrete PID loop and first-order filters of the guidance and control (author_impl §5.2).
+//! Discrete PID loop and first-order filters of the guidance and control (docs/REFERENCES.md A5.2).
 //!
 //! Unlike the authors' per-step form (no Δt scaling, derivative on the filtered *error*,
 //! plain accumulator), this PID is written in continuous-time units and discretised with the

@@ -1,4 +1,4 @@
-//! "True" gravity and magnetic fields (author_impl §3.5–3.6): the navigation models plus a
+//! "True" gravity and magnetic fields (docs/REFERENCES.md A3.5–A3.6): the navigation models plus a
 //! constant per-run error.
 //!
 //! Gravity: the navigation's normal gravity `(0, 0, g(φ, h))` in NED, rotated by a deflection

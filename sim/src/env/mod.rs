@@ -1,4 +1,4 @@
-//! The simulated world around the aircraft (author_impl §3): weather offsets (ΔT, Δp) ramps,
+//! The simulated world around the aircraft (docs/REFERENCES.md A3): weather offsets (ΔT, Δp) ramps,
 //! wind ramps, Dryden turbulence, and the "true" gravity and magnetic fields that differ from
 //! the navigation's models by per-run random errors.
 

@@ -1,4 +1,4 @@
-//! Temperature and pressure offset ramps (author_impl §3.3): constant, then linear, then
+//! Temperature and pressure offset ramps (docs/REFERENCES.md A3.3): constant, then linear, then
 //! constant, with stochastic times and values. Offsets depend on time only.
 
 use ianav::env::atmosphere::AtmosphereOffsets;
@@ -6,7 +6,7 @@ use serde::{Deserialize, Serialize};
 
 use crate::rng::{self, Stream};
 
-/// Parameters of the offsets draw (one row of the author_impl §3.3 table).
+/// Parameters of the offsets draw (one row of the docs/REFERENCES.md A3.3 table).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct OffsetsConfig {
@@ -82,7 +82,7 @@ pub(crate) fn ramp(t_s: f64, t: [f64; 2], v: [f64; 2]) -> f64 {
 }
 
 impl WeatherOffsets {
-    /// Draw the offsets of one run in the order of author_impl §3.3: ΔT start, Δp start,
+    /// Draw the offsets of one run in the order of docs/REFERENCES.md A3.3: ΔT start, Δp start,
     /// ΔT end, Δp end, ΔT initial, Δp initial, ΔT final, Δp final. Changes with σ = 0 still
     /// consume their normal draw, so the stream position does not depend on the config.
     pub fn draw(cfg: &OffsetsConfig, rng: &mut Stream) -> Self {
@@ -179,7 +179,7 @@ mod tests {
     }
 
     #[test]
-    fn draw_order_follows_author_impl() {
+    fn draw_order_follows_the_authors_code() {
         let cfg = OffsetsConfig::ID02;
         let w = WeatherOffsets::draw(&cfg, &mut stream(42, "env.offsets"));
         // Replay the stream by hand in the documented order.

@@ -1,5 +1,5 @@
 //! Dryden turbulence (MIL-F-8785C, high-altitude form, body axes), generated on the fly from
-//! the run's seed (author_impl §3.4; the authors pre-generated files that are not public, so
+//! the run's seed (docs/REFERENCES.md A3.4; the authors pre-generated files that are not public, so
 //! this generator is calibrated to the one statistic they documented — see
 //! `docs/ENVIRONMENT.md`, "Turbulence").
 //!
@@ -60,8 +60,8 @@ pub const SCALE_LENGTH_VW_M: f64 = 875.0 * FT_M;
 pub const CALIBRATION_TAS_MPS: f64 = 30.0;
 /// Altitude at which the roll-off lengths are calibrated, m (the scenarios fly 2.3–3.5 km).
 pub const CALIBRATION_H_M: f64 = 3000.0;
-/// Target variance of the x (longitudinal) gust acceleration at factor 1, (m/s²)² (author_impl
-/// §1.5/§3.4: 0.372, σ ≈ 0.61 m/s²).
+/// Target variance of the x (longitudinal) gust acceleration at factor 1, (m/s²)²
+/// (docs/REFERENCES.md A1.5, A3.4: 0.372, σ ≈ 0.61 m/s²).
 pub const CALIBRATION_ACCEL_VAR_X: f64 = 0.372;
 /// Target variance of the y and z gust accelerations at factor 1, (m/s²)² (0.563, σ ≈
 /// 0.75 m/s²).

@@ -1,4 +1,4 @@
-//! Low-frequency wind ramps (author_impl §3.4): horizontal, function of time only; the North
+//! Low-frequency wind ramps (docs/REFERENCES.md A3.4): horizontal, function of time only; the North
 //! and East components go linearly from the initial to the final wind over the ramp.
 
 use ianav::math::angle::wrap_180_deg;
@@ -8,7 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::offsets::{draw_at_least, ramp};
 use crate::rng::{self, Stream};
 
-/// Parameters of the wind draw (one row of the author_impl §3.4 table).
+/// Parameters of the wind draw (one row of the docs/REFERENCES.md A3.4 table).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct WindConfig {
@@ -63,7 +63,7 @@ fn wind_towards(speed_mps: f64, chi_deg: f64) -> Vector3<f64> {
 }
 
 impl WindField {
-    /// Draw the wind of one run in the order of author_impl §3.4: ramp start (redrawn while
+    /// Draw the wind of one run in the order of docs/REFERENCES.md A3.4: ramp start (redrawn while
     /// below the earliest start), ramp end (redrawn while shorter than σ_t/2; both loops
     /// capped by [`crate::rng::MAX_REDRAWS`], falling back to the bound), initial speed
     /// `|σ_V N|`, initial direction `U_int{−179..180}°`, speed change, direction change. A
@@ -137,7 +137,7 @@ mod tests {
     }
 
     #[test]
-    fn draw_order_follows_author_impl() {
+    fn draw_order_follows_the_authors_code() {
         let cfg = WindConfig::ID03;
         let f = WindField::draw(&cfg, &mut stream(9, "env.wind"));
         let mut r = stream(9, "env.wind");

@@ -1,7 +1,7 @@
-//! Air-data sensors (author_impl §2.4): Pitot true airspeed, AoA and AoS vanes, static
+//! Air-data sensors (docs/REFERENCES.md A2.4): Pitot true airspeed, AoA and AoS vanes, static
 //! pressure and outside air temperature. Each is `ỹ = x + B₀ν₀ + σ·ν_k`: a constant per-run
 //! bias and a per-sample white noise whose σ does **not** depend on the sample rate
-//! (author_impl quirk 10, kept so the noise matches the published 100 Hz figures; at another
+//! (docs/REFERENCES.md A9.10, kept so the noise matches the published 100 Hz figures; at another
 //! rate the noise density changes).
 //!
 //! The C++ applies the sideslip error to `−β`; the error is symmetric, so it is applied to

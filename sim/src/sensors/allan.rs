@@ -1,5 +1,5 @@
 //! Allan deviation (IEEE Std 952 / NIST SP 1065), used to verify the inertial noise models of
-//! author_impl §2.1 against their white-noise (`σ_v/√τ`) and random-walk (`σ_u·√(τ/3)`)
+//! docs/REFERENCES.md A2.1 against their white-noise (`σ_v/√τ`) and random-walk (`σ_u·√(τ/3)`)
 //! signatures.
 
 /// One Allan-deviation estimate.

@@ -1,4 +1,4 @@
-//! Camera mounting errors of one run (author_impl §2.6): true Euler angles body → camera =
+//! Camera mounting errors of one run (docs/REFERENCES.md A2.6): true Euler angles body → camera =
 //! nominal + 0.1°·N, estimated = true + 0.01°·N, estimated lens position = true + 0.002 m·N per
 //! axis, drawn from the run's own `camera_mounting` stream (the types and the arithmetic live
 //! in `ianav::vision::camera`).

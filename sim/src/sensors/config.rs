@@ -1,5 +1,5 @@
-//! Sensor error-model parameters (author_impl §2.1–2.5), their defaults (the authors' "base"
-//! grades), the other grades as named presets, TOML loading and validation.
+//! Sensor error-model parameters (docs/REFERENCES.md A2.1–A2.5), their defaults (the authors'
+//! "base" grades), the other grades as named presets, TOML loading and validation.
 //!
 //! Units: SI inside the structs except where a field name says `_deg` (configuration only;
 //! converted to radians when the sensors are built). The inertial parameters are shared by
@@ -9,16 +9,16 @@
 use serde::{Deserialize, Serialize};
 use thiserror::Error;
 
-/// Radians per degree, for the defaults that author_impl states in degrees.
+/// Radians per degree, for the defaults that docs/REFERENCES.md A2 states in degrees.
 const RAD_PER_DEG: f64 = std::f64::consts::PI / 180.0;
 
 /// Soft band limit `L` of the bias random walks and of the ionospheric walk, in steps
-/// (author_impl §2.1 `band_id_base`).
+/// (docs/REFERENCES.md A2.1 `band_id_base`).
 pub const DEFAULT_BAND_LIMIT_STEPS: f64 = 100.0;
-/// Safety margin of the soft band, in steps (author_impl §2.1).
+/// Safety margin of the soft band, in steps (docs/REFERENCES.md A2.1).
 pub const DEFAULT_BAND_SAFETY_STEPS: f64 = 20.0;
 
-/// Structure of the scale and cross-coupling matrix `M` (author_impl §2.1).
+/// Structure of the scale and cross-coupling matrix `M` (docs/REFERENCES.md A2.1).
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum CrossCoupling {
@@ -28,7 +28,7 @@ pub enum CrossCoupling {
     LowerTriangular,
 }
 
-/// Error model of one inertial triad (gyroscope or accelerometer), author_impl §2.1.
+/// Error model of one inertial triad (gyroscope or accelerometer), docs/REFERENCES.md A2.1.
 ///
 /// Units are those of the measured quantity `u` (rad/s for the gyroscope, m/s² for the
 /// accelerometer).
@@ -56,7 +56,8 @@ pub struct InertialConfig {
 }
 
 impl InertialConfig {
-    /// Gyroscope from the author_impl §2.1 grade tuple (σ_u °/s^1.5, σ_v °/s^0.5, s, m, B₀ °/s).
+    /// Gyroscope from the docs/REFERENCES.md A2.1 grade tuple
+    /// (σ_u °/s^1.5, σ_v °/s^0.5, s, m, B₀ °/s).
     fn gyro_grade(sigma_u_deg: f64, sigma_v_deg: f64, s: f64, m: f64, b0_deg: f64) -> Self {
         Self {
             bias_offset_sigma: b0_deg * RAD_PER_DEG,
@@ -70,8 +71,8 @@ impl InertialConfig {
         }
     }
 
-    /// Accelerometer from the author_impl §2.1 grade tuple (σ_u m/s^2.5, σ_v m/s^1.5, s, m,
-    /// B₀ m/s²).
+    /// Accelerometer from the docs/REFERENCES.md A2.1 grade tuple
+    /// (σ_u m/s^2.5, σ_v m/s^1.5, s, m, B₀ m/s²).
     fn accel_grade(sigma_u: f64, sigma_v: f64, s: f64, m: f64, b0: f64) -> Self {
         Self {
             bias_offset_sigma: b0,
@@ -85,7 +86,7 @@ impl InertialConfig {
         }
     }
 
-    /// Gyroscope, "base" grade (the default; author_impl §2.1 table).
+    /// Gyroscope, "base" grade (the default; docs/REFERENCES.md A2.1 table).
     pub fn gyro_base() -> Self {
         Self::gyro_grade(1.42e-4, 4.30e-3, 1.50e-5, 4.35e-5, 0.200)
     }
@@ -105,7 +106,7 @@ impl InertialConfig {
         Self::gyro_grade(1.5e-3, 2.5e-2, 1e-4, 4.5e-4, 1.5)
     }
 
-    /// Accelerometer, "base" grade (the default; author_impl §2.1 table).
+    /// Accelerometer, "base" grade (the default; docs/REFERENCES.md A2.1 table).
     pub fn accel_base() -> Self {
         Self::accel_grade(6.86e-5, 4.83e-4, 5.00e-5, 3.05e-5, 0.157)
     }
@@ -152,7 +153,7 @@ impl InertialConfig {
 }
 
 /// IMU platform mounting: position and orientation of the IMU in the airframe, true and as
-/// the navigation believes them (author_impl §2.2; drawn from the aircraft stream).
+/// the navigation believes them (docs/REFERENCES.md A2.2; drawn from the aircraft stream).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct PlatformConfig {
@@ -194,7 +195,7 @@ impl PlatformConfig {
     }
 }
 
-/// Magnetometer error model (author_impl §2.3).
+/// Magnetometer error model (docs/REFERENCES.md A2.3).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct MagConfig {
@@ -260,8 +261,8 @@ impl Default for MagConfig {
 }
 
 /// Air-data sensors: Pitot (TAS), AoA and AoS vanes, static pressure, outside air temperature
-/// (author_impl §2.4). Each is `ỹ = x + B₀ν₀ + σν_k`, with a per-sample σ independent of the
-/// sample rate (author_impl quirk 10, kept on purpose).
+/// (docs/REFERENCES.md A2.4). Each is `ỹ = x + B₀ν₀ + σν_k`, with a per-sample σ independent of the
+/// sample rate (docs/REFERENCES.md A9.10, kept on purpose).
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct AirDataConfig {
@@ -332,7 +333,7 @@ impl AirDataConfig {
     }
 }
 
-/// GNSS receiver (author_impl §2.5): white position and velocity noise plus a slowly varying
+/// GNSS receiver (docs/REFERENCES.md A2.5): white position and velocity noise plus a slowly varying
 /// ionospheric position error.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields)]
@@ -402,7 +403,7 @@ impl GnssConfig {
     }
 }
 
-/// All simulated-sensor parameters. `Default` = the author_impl §2 "base" values.
+/// All simulated-sensor parameters. `Default` = the docs/REFERENCES.md A2 "base" values.
 ///
 /// In TOML every section may be omitted (it then takes its default); a section that is
 /// present must give all its fields, and unknown fields are rejected.

@@ -1,10 +1,11 @@
-//! GNSS receiver (author_impl §2.5): NED position error `e = [σ_h ν, σ_h ν, σ_v ν] + σ_iono·I`
-//! and velocity error `σ_vel ν` per axis, where `I` is an ionospheric walk (in steps) that
-//! starts at `50·N(0, 1)` and takes one band-limited step every 60 fixes.
+//! GNSS receiver (docs/REFERENCES.md A2.5): NED position error
+//! `e = [σ_h ν, σ_h ν, σ_v ν] + σ_iono·I` and velocity error `σ_vel ν` per axis, where `I` is an
+//! ionospheric walk (in steps) that starts at `50·N(0, 1)` and takes one band-limited step every 60
+//! fixes.
 //!
-//! Deviation from the C++ (quirk 6): the ionospheric error is interpolated **linearly**
-//! between its nodes, as the original intended; the C++ integer division made it piecewise
-//! constant with a jump every 60 s.
+//! Deviation from the C++ (docs/REFERENCES.md A9.6): the ionospheric error is interpolated
+//! **linearly** between its nodes, as the original intended; the C++ integer division made it
+//! piecewise constant with a jump every 60 s.
 //!
 //! The position error is applied on the ellipsoid through the radii of curvature:
 //! `φ̃ = φ + e_N/(M + h)`, `λ̃ = λ + e_E/((N + h)·cos φ)`, `h̃ = h − e_D`.

@@ -1,4 +1,4 @@
-//! Gyroscope and accelerometer (author_impl §2.1) on the IMU platform of §2.2.
+//! Gyroscope and accelerometer (docs/REFERENCES.md A2.1) on the IMU platform of A2.2.
 //!
 //! Each triad measures `ũ = A·u + B + (σ_v/√Δt)·ν` with
 //! `A = R_bp,est·(I + M)·R_pb,true` (scale/cross-coupling `M` in platform axes, seen through
@@ -10,10 +10,10 @@
 //! navigation's lever-arm estimate:
 //! `f̃ = A·(f + ℓ_true) − ℓ_est + B + noise`, `ℓ = ω×(ω×r) + ω̇×r`. `ℓ_true` uses the true
 //! `ω, ω̇`; `ℓ_est` uses the measured gyro output and its finite difference over one sample
-//! period, the estimated `T_rp` and the true CG (author_impl quirk 7, kept: the navigation has
+//! period, the estimated `T_rp` and the true CG (docs/REFERENCES.md A9.7, kept: the navigation has
 //! no CG estimate of its own).
 //!
-//! Deviation from the C++ (quirk 7): the gyroscope gets the full mounting model
+//! Deviation from the C++ (docs/REFERENCES.md A9.7): the gyroscope gets the full mounting model
 //! `ω̃ = A·ω + B + noise`, where the original applied the misalignment only through the scale
 //! term; the difference is `(R_bp,est·R_pb,true − I)·ω`, ≈ 5e-4·|ω| for the default
 //! 0.03° mounting-estimate error.

@@ -1,4 +1,4 @@
-//! Magnetometer (author_impl §2.3): `B̃ = B^b + B_hi + B_off + M_si·B^b + (σ_v/√Δt)·ν` with
+//! Magnetometer (docs/REFERENCES.md A2.3): `B̃ = B^b + B_hi + B_off + M_si·B^b + (σ_v/√Δt)·ν` with
 //! `B^b = C_bn·B^n`. Hard iron `B_hi` and soft iron `M_si` (full 3×3) belong to the aircraft;
 //! the offset `B_off` and the noise to the run. No platform misalignment, as in the C++.
 

@@ -1,4 +1,4 @@
-//! Simulated sensors (author_impl §2): IMU (gyroscope, accelerometer) with bias offset, bias
+//! Simulated sensors (docs/REFERENCES.md A2): IMU (gyroscope, accelerometer) with bias offset, bias
 //! random walk, white noise, scale and cross-coupling, mounting misalignment and lever arm;
 //! magnetometer with hard and soft iron; Pitot, vanes, barometer, thermometer; GNSS with
 //! white noise and a slowly varying ionospheric error.
@@ -89,8 +89,8 @@ pub struct SensorTruth {
     pub temp_k: f64,
 }
 
-/// The true systematic sensor errors ("E" = everything except white noise, author_impl §1.1)
-/// and mounting, for the INS initialisation (author_impl §1.9).
+/// The true systematic sensor errors ("E" = everything except white noise, docs/REFERENCES.md A1.1)
+/// and mounting, for the INS initialisation (docs/REFERENCES.md A1.9).
 ///
 /// The `e_*` errors depend on the measured quantity (scale, cross-coupling, misalignment,
 /// lever arm), so they are those of the **last** sample of each sensor; before the first

@@ -1,6 +1,6 @@
-//! IMU platform mounting (author_impl §2.2): the true and the navigation-estimated orientation
-//! of the IMU platform axes `P` in the body axes `B`, and the IMU position from the aircraft
-//! reference point, drawn once per aircraft.
+//! IMU platform mounting (docs/REFERENCES.md A2.2): the true and the navigation-estimated
+//! orientation of the IMU platform axes `P` in the body axes `B`, and the IMU position from the
+//! aircraft reference point, drawn once per aircraft.
 
 use nalgebra::{UnitQuaternion, Vector3};
 

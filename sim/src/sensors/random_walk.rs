@@ -1,5 +1,5 @@
-//! Softly band-limited random walk in units of steps (author_impl §2.1 "band" limit), used for
-//! the inertial bias drift and the GNSS ionospheric error (§2.5).
+//! Softly band-limited random walk in units of steps (docs/REFERENCES.md A2.1 "band" limit), used
+//! for the inertial bias drift and the GNSS ionospheric error (A2.5).
 //!
 //! `S_k = S_{k−1} + ν_k + c(S_{k−1})`, ν ~ N(0, 1). Inside `|S| ≤ L − safety` the walk is
 //! free (`c = 0`); beyond, a restoring pull `c = ∓g·(|S| − (L − safety))/safety` with gain

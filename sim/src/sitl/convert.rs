@@ -1,7 +1,7 @@
 //! SI ↔ MAVLink unit conversions of the SITL vehicle (MAVLink `common.xml` field definitions;
-//! research/mavlink.md §3.1 for the vehicle's messages, §2.1 for the companion's). Written
+//! docs/REFERENCES.md M3.1 for the vehicle's messages, M2.1 for the companion's). Written
 //! independently of the daemon's decoder so that the two implementations of the spec meet
-//! only on the wire (issue 5, item 5).
+//! only on the wire.
 //!
 //! Conventions: body axes are FRD (the simulator's `B` frame), accelerations are specific
 //! force (≈ −9.81 m/s² on z in level flight), angles are radians unless the field is in

@@ -1,4 +1,4 @@
-//! Camera frame stream server of the SITL vehicle (issue 5, item 4 "Camera sources"; wire
+//! Camera frame stream server of the SITL vehicle (docs/DAEMON.md "Camera sources"; wire
 //! format in `ianav::io::frame_stream`): one TCP client at a time receives the rendered
 //! frames, stamped on the vehicle's boot clock. The flight loop hands frames over through a
 //! small bounded queue with `try_send`, so a slow or absent client can never hold the flight

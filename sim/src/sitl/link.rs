@@ -1,9 +1,9 @@
-//! The SITL vehicle on a real MAVLink link (mavlink 0.21 async connections; research/
-//! mavlink.md §1.3–1.4): one task reads the link, one writes it, and the flight loop runs
-//! the [`Vehicle`] on the simulated clock, paced against the wall clock at `speed` × real
-//! time with absolute deadlines (`tokio::time::sleep_until`), so late ticks catch up instead
-//! of accumulating drift. Pacing decides only *when* messages leave; the flight is the same
-//! for the same seed until the companion's estimates start steering it after GNSS loss.
+//! The SITL vehicle on a real MAVLink link (mavlink 0.21 async connections; docs/REFERENCES.md
+//! M1.3–M1.4): one task reads the link, one writes it, and the flight loop runs the [`Vehicle`] on
+//! the simulated clock, paced against the wall clock at `speed` × real time with absolute deadlines
+//! (`tokio::time::sleep_until`), so late ticks catch up instead of accumulating drift. Pacing
+//! decides only *when* messages leave; the flight is the same for the same seed until the
+//! companion's estimates start steering it after GNSS loss.
 //!
 //! In real time (`speed` > 0) the flight loop never waits on a peer: outgoing messages go
 //! through a bounded queue with `try_send` (a full queue drops and counts), camera frames

@@ -1,6 +1,6 @@
-//! `ianav-sim sitl`: the simulator as a MAVLink vehicle for the ianav daemon (issue 5,
-//! item 5; research/mavlink.md §3 autopilot output, §3.3 message intervals, §3.4 TIMESYNC,
-//! §4–5 camera frames and SITL; `docs/SITL.md` for what is sent and why).
+//! `ianav-sim sitl`: the simulator as a MAVLink vehicle for the ianav daemon (docs/REFERENCES.md M3
+//! autopilot output, M3.3 message intervals, M3.4 TIMESYNC, M4–M5 camera frames and SITL;
+//! `docs/SITL.md` for what is sent and why).
 //!
 //! - [`vehicle`]: the flight seen through an autopilot's MAVLink interface (synchronous,
 //!   transport-free).

@@ -1,5 +1,5 @@
 //! The vehicle's side of TIMESYNC as a requester (MAVLink "Time Synchronization Protocol v2";
-//! research/mavlink.md §3.4: PX4 sends requests at 10 Hz on onboard links): each answered
+//! docs/REFERENCES.md M3.4: PX4 sends requests at 10 Hz on onboard links): each answered
 //! request gives a pair (companion clock `tc1`, vehicle clock at the round trip's midpoint).
 //! A least-squares line through the recent pairs maps companion timestamps to vehicle time,
 //! with a skew term because at `--speed K` the vehicle clock runs K times faster than the

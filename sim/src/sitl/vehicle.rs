@@ -1,6 +1,6 @@
-//! The SITL vehicle without its network: a simulated [`Flight`] seen through an autopilot's
-//! MAVLink interface (issue 5, item 5; research/mavlink.md §3 for what an autopilot sends,
-//! §3.3 SET_MESSAGE_INTERVAL, §3.4 TIMESYNC, §2.1–2.3 what a companion sends back).
+//! The SITL vehicle without its network: a simulated [`Flight`] seen through an autopilot's MAVLink
+//! interface (docs/REFERENCES.md M3 for what an autopilot sends, M3.3 SET_MESSAGE_INTERVAL, M3.4
+//! TIMESYNC, M2.1–M2.3 what a companion sends back).
 //!
 //! Synchronous and transport-free so that it can be tested message by message: the async
 //! link (`super::link`) feeds it incoming messages, advances it on the simulated clock and
@@ -8,9 +8,10 @@
 //! the start of the warm-up): `time_usec`, `time_boot_ms`, TIMESYNC `tc1` and the camera
 //! frame stamps all count on it.
 //!
-//! What it reports as its own estimate (ATTITUDE, GLOBAL_POSITION_INT, VFR_HUD) is the
-//! estimate its guidance flies on: the vehicle's own INS (the simulator's EKF, with its
-//! realistic errors), or, after GNSS loss, the companion's horizontal position (item 7).
+//! What it reports as its own estimate (ATTITUDE, GLOBAL_POSITION_INT, VFR_HUD) is the estimate its
+//! guidance flies on: the vehicle's own INS (the simulator's EKF, with its realistic errors), or,
+//! after GNSS loss, the companion's horizontal position (`docs/SITL.md`, "Flying on the daemon's
+//! position after GNSS loss").
 //!
 //! Message content follows the imitated autopilot (`docs/SITL.md` has the
 //! side-by-side table): **ArduPilot** sends the latest IMU sample as `float × 1000` truncated
@@ -73,7 +74,7 @@ pub struct VehicleConfig {
     pub system_id: u8,
     /// MAVLink component id of the autopilot (1 = MAV_COMP_ID_AUTOPILOT1).
     pub component_id: u8,
-    /// After GNSS loss, fly on the companion's horizontal position (item 7).
+    /// After GNSS loss, fly on the companion's horizontal position (`docs/SITL.md`).
     pub fly_on_estimates: bool,
     /// Age beyond which a companion position is no longer flown on, µs of vehicle time.
     pub estimate_timeout_us: u64,

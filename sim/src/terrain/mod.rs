@@ -1,7 +1,7 @@
-//! Procedural terrain of the visual experiments (issue 4; paper section "Influence of Terrain
-//! Type"; start points after `research/author_impl.md` §6.5): six zones whose height and
-//! albedo are pure functions of geodetic position and a terrain seed, cached in tiles, and the
-//! renderer of the down-looking camera's images ([`render`]).
+//! Procedural terrain of the visual experiments (paper section "Influence of Terrain Type"; start
+//! points after docs/REFERENCES.md A6.5): six zones whose height and albedo are pure functions of
+//! geodetic position and a terrain seed, cached in tiles, and the renderer of the down-looking
+//! camera's images ([`render`]).
 //!
 //! Geodetic position → texture coordinates: an equirectangular map with the zone's reference
 //! latitude `φ_ref` (its start point), `x = a cos φ_ref · λ`, `y = a · φ` (m, `a` the WGS84
@@ -60,7 +60,7 @@ pub enum Zone {
     Urban,
 }
 
-/// Start point of a zone (author_impl §6.5; heights are the authors' ground heights above
+/// Start point of a zone (docs/REFERENCES.md A6.5; heights are the authors' ground heights above
 /// mean sea level, quoted for reference: the procedural ground differs).
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct ZoneStart {
@@ -95,7 +95,7 @@ impl Zone {
         }
     }
 
-    /// Start point (author_impl §6.5, longitudes converted from [0, 360)).
+    /// Start point (docs/REFERENCES.md A6.5, longitudes converted from [0, 360)).
     pub fn start(self) -> ZoneStart {
         let (lon360, lat_deg, ground_m) = match self {
             Zone::Desert => (248.001_185, 32.157_903, 661.0),

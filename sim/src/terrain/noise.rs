@@ -1,4 +1,4 @@
-//! Procedural-noise building blocks of the terrain zones (issue 4, "Terrain"): integer hashing,
+//! Procedural-noise building blocks of the terrain zones (docs/TERRAIN.md): integer hashing,
 //! value noise with analytic derivatives, band-limited fractal sums, cellular (Worley) noise
 //! and anti-aliased masks.
 //!

@@ -1,5 +1,5 @@
-//! Renderer of the down-looking camera's images over the procedural terrain (issue 4,
-//! "Renderer"; camera of author_impl §2.6).
+//! Renderer of the down-looking camera's images over the procedural terrain (docs/TERRAIN.md;
+//! camera of docs/REFERENCES.md A2.6).
 //!
 //! For every pixel the ray through its centre is intersected with the terrain height field
 //! and the albedo there, band-limited to the pixel's ground footprint, is the grey level

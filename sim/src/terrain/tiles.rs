@@ -1,4 +1,4 @@
-//! Tile cache of the terrain (issue 4, "Terrain"): height and albedo rasters generated lazily
+//! Tile cache of the terrain (docs/TERRAIN.md): height and albedo rasters generated lazily
 //! from the procedural zone functions and kept in a least-recently-used cache of bounded size,
 //! so that rendering a frame is a lookup. Thread-safe: a frame asks for all its tiles at once,
 //! the missing ones are generated in parallel (rayon) outside the lock.
