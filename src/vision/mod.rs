@@ -1,5 +1,5 @@
 //! Visual navigation: the down-looking camera shared by the simulator's renderer and the
-//! (coming) semi-direct visual odometry of the paper's sections "Visual Navigation" and
+//! (coming) semi-direct visual odometry of the paper's sections "Semi-Direct Visual Odometry" and
 //! "Optical Flow" (appendix), with the numbers of docs/REFERENCES.md A2.6.
 //!
 //! - [`camera`]: ideal pinhole (768 × 1024 px, f = 19 mm, 17 µm pixels), projection and
