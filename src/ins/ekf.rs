@@ -100,62 +100,13 @@ pub(crate) fn symmetrize<const N: usize>(p: &mut SMatrix<f64, N, N>) {
     }
 }
 
-/// First-order discrete low-pass filter (docs/REFERENCES.md A1.3, "LPF_Tf"):
-/// `y_k = β y_{k−1} + α u_k` with `α = Δt/(T_f + Δt)`, `β = T_f/(T_f + Δt)`, initialised with
-/// an explicit value. Δt is passed at each step, so the filter is rate independent.
-///
-/// Unlike the authors' filter it starts as the running mean of the initial value and the
-/// inputs (`α = Δt/(t + 2Δt)` after `t` seconds of steps, i.e. 1/2, 1/3, … for equal steps)
-/// and becomes the exponential filter once `t + Δt` reaches `T_f`, so that a long time
-/// constant does not leave the output dominated by the first sample.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub(crate) struct LowPass<T> {
-    /// Time constant `T_f`, s.
-    tau_s: f64,
-    /// Time stepped so far, s.
-    elapsed_s: f64,
-    /// Current output.
-    y: T,
-}
-
-impl<T> LowPass<T>
-where
-    T: Copy + std::ops::Mul<f64, Output = T> + std::ops::Add<Output = T>,
-{
-    /// Filter with time constant `tau_s` (s, ≥ 0) and initial output `y0`.
-    pub fn new(tau_s: f64, y0: T) -> Self {
-        Self {
-            tau_s,
-            elapsed_s: 0.0,
-            y: y0,
-        }
-    }
-
-    /// One step of `dt_s` (s, ≥ 0) with input `u`; returns the new output.
-    pub fn step(&mut self, u: T, dt_s: f64) -> T {
-        let window_s = self.tau_s.min(self.elapsed_s + dt_s);
-        self.elapsed_s += dt_s;
-        let den = window_s + dt_s;
-        if den > 0.0 {
-            let alpha = dt_s / den;
-            self.y = self.y * (1.0 - alpha) + u * alpha;
-        }
-        self.y
-    }
-
-    /// Current output.
-    pub fn value(&self) -> T {
-        self.y
-    }
-}
-
 /// Moving average over the last `window_s` seconds (± one 1-s bin) of time-weighted inputs (a
 /// running mean of everything until the window is full).
 ///
 /// It averages noise like a first-order filter of `window_s/2` (same variance of the mean for
 /// a window much longer than the input's correlation time) but has no memory beyond the
 /// window: an input that changed — the wind through a climb, a take-off roll, a step — is
-/// forgotten entirely one window later, where `LowPass` keeps `e^{−t/T_f}` of it. Bins make the
+/// forgotten entirely one window later, where a first-order filter keeps `e^{−t/T_f}` of it. Bins make the
 /// window end move in 1-s steps; the total is re-summed from the bins when one closes, so no
 /// rounding accumulates over a long flight.
 #[derive(Debug, Clone, PartialEq)]
@@ -290,17 +241,24 @@ mod tests {
         // A 120-s window averages noise like a 60-s first-order filter. A 6 m/s step 15 s
         // after the start: 180 s later the filter still holds 1.5·e^{−135/60} ≈ 0.16 m/s of
         // the old value (1.5 m/s at 60 s, when its running mean ends), the window nothing.
-        let (mut w, mut lp) = (WindowMean::new(120.0, 0.0), LowPass::new(60.0, 0.0));
+        // The filter starts as a running mean until its time constant, as the window does.
+        let mut w = WindowMean::new(120.0, 0.0);
+        let (mut lp, mut t) = (0.0_f64, 0.0_f64);
+        let mut step = |u: f64, w: &mut WindowMean<f64>| {
+            let dt = 0.01;
+            w.step(u, dt);
+            let alpha = dt / (60.0_f64.min(t + dt) + dt);
+            lp += alpha * (u - lp);
+            t += dt;
+        };
         for _ in 0..1500 {
-            w.step(0.0, 0.01);
-            lp.step(0.0, 0.01);
+            step(0.0, &mut w);
         }
         for _ in 0..18_000 {
-            w.step(6.0, 0.01);
-            lp.step(6.0, 0.01);
+            step(6.0, &mut w);
         }
         assert!((w.value() - 6.0).abs() < 1e-9, "{}", w.value());
-        assert!(6.0 - lp.value() > 0.1, "{}", lp.value());
+        assert!(6.0 - lp > 0.1, "{lp}");
     }
 
     #[test]
@@ -359,39 +317,5 @@ mod tests {
         );
         assert_eq!(res.unwrap_err(), UpdateRejection::Numerical);
         assert_eq!(p, p0);
-    }
-
-    #[test]
-    fn low_pass_averages_then_filters() {
-        // Running mean of y0 and the inputs until T_f...
-        let mut avg = LowPass::new(0.05, 0.0);
-        let inputs = [3.0, 6.0, 9.0, 12.0];
-        for (k, u) in inputs.iter().enumerate() {
-            let y = avg.step(*u, 0.01);
-            let mean = inputs[..=k].iter().sum::<f64>() / (k as f64 + 2.0);
-            assert!((y - mean).abs() < 1e-12, "step {k}: {y} vs {mean}");
-        }
-        // ... then the exponential filter (window 0.05 s reached: α = 0.01/0.06).
-        let y_prev = avg.value();
-        let y = avg.step(1.0, 0.01);
-        assert!((y - (y_prev * (1.0 - 1.0 / 6.0) + 1.0 / 6.0)).abs() < 1e-12);
-        // Long after T_f the step response is the exponential one: from y_m at time m·Δt,
-        // n more unit steps give 1 − (1 − y_m)·βⁿ with β = T_f/(T_f + Δt).
-        let mut lp = LowPass::new(3.0, Vector3::zeros());
-        for _ in 0..300 {
-            lp.step(Vector3::new(1.0, 2.0, 0.0), 0.01);
-        }
-        let y_m = lp.value().x;
-        for _ in 0..300 {
-            lp.step(Vector3::new(1.0, 2.0, 0.0), 0.01);
-        }
-        let beta: f64 = 3.0 / 3.01;
-        let expect = 1.0 - (1.0 - y_m) * beta.powi(300);
-        assert!((lp.value().x - expect).abs() < 1e-12);
-        assert!((lp.value().y - 2.0 * expect).abs() < 1e-12);
-        // Zero time constant and zero step: output passes through / holds.
-        let mut lp = LowPass::new(0.0, 1.0);
-        assert_eq!(lp.step(5.0, 0.0), 1.0);
-        assert_eq!(lp.step(5.0, 0.01), 5.0);
     }
 }

@@ -32,7 +32,7 @@ use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::air_data;
 use super::config::{AirDataFilterConfig, PositionFilterConfig};
-use super::ekf::{self, LowPass, UpdateRejection, WindowMean};
+use super::ekf::{self, UpdateRejection, WindowMean};
 use crate::env::atmosphere::{self, AtmosphereOffsets};
 use crate::math::so3;
 use crate::math::wgs84::{self, Geodetic};
@@ -418,9 +418,9 @@ pub(crate) struct GnssPhaseEstimates {
     /// The NED air velocity `C_nb v_TAS^b` through the same window: an attitude error `δθ_n`
     /// put `−[v̄_air]× δθ_n` into the wind estimate.
     v_air_n: WindowMean<Vector3<f64>>,
-    /// Running mean of the per-body-axis turbulence variance measured from the raw wind's
-    /// deviation from its low-pass, (m/s)².
-    gust_var_b: LowPass<Vector3<f64>>,
+    /// Moments of the raw wind in body axes over the same window, from which the gust
+    /// variance is the raw wind's spread about the window's mean ([`GustMoments`]).
+    gust_moments: WindowMean<GustMoments>,
     /// Turbulence integral scales along the body axes, m.
     gust_scale_m: [f64; 3],
 }
@@ -428,6 +428,59 @@ pub(crate) struct GnssPhaseEstimates {
 /// Do not measure the turbulence before the wind low-pass has averaged this long, s (its
 /// deviation is then a small, poorly known fraction of the gust).
 const GUST_MIN_AVERAGING_S: f64 = 10.0;
+/// Smallest fraction `1 − var m` of a gust's variance that the spread about a window's mean
+/// is taken to show (a window much shorter than the gust's correlation time sees little of it).
+const GUST_MIN_SEEN_FRACTION: f64 = 0.05;
+
+/// Per-sample moments of the raw wind `r` with the attitude `C = C_nb`, whose window means
+/// give the mean square of `(Cᵀ (r − m))_k` about any `m`:
+/// `⟨b_k²⟩ − 2 mᵀ⟨b_k c_k⟩ + mᵀ⟨c_k c_kᵀ⟩ m`, with `b = Cᵀ r` and `c_k` the k-th body axis in
+/// NED (the k-th column of `C`). Columns: `b_k²` (0), `b_k c_k` (1 + k), `c_k c_kᵀ` (4 + 3k..).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub(crate) struct GustMoments(SMatrix<f64, 3, 13>);
+
+impl GustMoments {
+    fn zeros() -> Self {
+        Self(SMatrix::zeros())
+    }
+
+    fn of_sample(c_nb: &Matrix3<f64>, wind_n: &Vector3<f64>) -> Self {
+        let b = c_nb.transpose() * wind_n;
+        let mut m = SMatrix::<f64, 3, 13>::zeros();
+        m.set_column(0, &b.component_mul(&b));
+        for k in 0..3 {
+            let c_k = c_nb.column(k).into_owned();
+            m.set_column(1 + k, &(c_k * b[k]));
+            m.fixed_view_mut::<3, 3>(0, 4 + 3 * k)
+                .copy_from(&(c_k * c_k.transpose()));
+        }
+        Self(m)
+    }
+
+    /// Mean square deviation of the body-axis raw wind from `mean_n`, per body axis.
+    fn spread_b(&self, mean_n: &Vector3<f64>) -> Vector3<f64> {
+        let m = &self.0;
+        Vector3::from_fn(|k, _| {
+            let cross = mean_n.dot(&m.column(1 + k));
+            let quad = (mean_n.transpose() * m.fixed_view::<3, 3>(0, 4 + 3 * k) * mean_n)[(0, 0)];
+            (m[(k, 0)] - 2.0 * cross + quad).max(0.0)
+        })
+    }
+}
+
+impl std::ops::Add for GustMoments {
+    type Output = Self;
+    fn add(self, rhs: Self) -> Self {
+        Self(self.0 + rhs.0)
+    }
+}
+
+impl std::ops::Mul<f64> for GustMoments {
+    type Output = Self;
+    fn mul(self, rhs: f64) -> Self {
+        Self(self.0 * rhs)
+    }
+}
 
 /// Correlation time `L/V` of the turbulence of integral scale `scale_m`, s (airspeed floored
 /// at 1 m/s: at rest there is no flight through the field).
@@ -517,19 +570,32 @@ impl GnssPhaseEstimates {
             wind_cov: WindowMean::new(window_s, wind_cov),
             c_nb: WindowMean::new(window_s, q_nb.to_rotation_matrix().into_inner()),
             v_air_n: WindowMean::new(window_s, v_air_n),
-            gust_var_b: LowPass::new(f64::INFINITY, Vector3::zeros()),
+            gust_moments: WindowMean::new(window_s, GustMoments::zeros()),
             gust_scale_m,
         }
     }
 
     /// Turbulence seen while GNSS is available: per body axis its variance σ², and the
     /// fractions of it in the wind average at this moment ([`GustInWindow`]).
+    ///
+    /// The variance is the raw wind's mean square deviation from the window's mean, per body
+    /// axis, over the window: for a unit exponentially correlated gust its expectation is
+    /// `1 − var m` (the window's time average of `var(g − m) = 1 − 2 cov(g, m) + var m`, and
+    /// `cov(g, m)` averages to `var m`). A wind that changed more than one window ago (the
+    /// climb, a take-off roll, a step) is then not taken for turbulence; one inside the window
+    /// is, as the wind estimate is then that much less certain.
     pub fn gust(&self, tas_mps: f64) -> (Vector3<f64>, Vector3<f64>, Vector3<f64>) {
         let w = self.wind_n.covered_s();
         let f = |i: usize| GustInWindow::new(gust_tau_s(self.gust_scale_m[i], tas_mps), w);
         let fr = [f(0), f(1), f(2)];
+        let var = if w >= GUST_MIN_AVERAGING_S {
+            let spread = self.gust_moments.value().spread_b(&self.wind_n.value());
+            Vector3::from_fn(|i, _| spread[i] / (1.0 - fr[i].mean_var).max(GUST_MIN_SEEN_FRACTION))
+        } else {
+            Vector3::zeros()
+        };
         (
-            self.gust_var_b.value(),
+            var,
             Vector3::from_fn(|i, _| fr[i].mean_var),
             Vector3::from_fn(|i, _| fr[i].cov_with_latest),
         )
@@ -578,17 +644,8 @@ impl GnssPhaseEstimates {
             self.wind_cov.step(wind_cov, dt_s);
             self.c_nb.step(c_nb, dt_s);
             self.v_air_n.step(v_air_n, dt_s);
-            // Turbulence: the raw wind's deviation from its average, in body axes, has the
-            // variance σ² · `GustInWindow::deviation_var` of an exponentially correlated gust.
-            let w = self.wind_n.covered_s();
-            if w >= GUST_MIN_AVERAGING_S {
-                let d_b = c_nb.transpose() * (wind_n - self.wind_n.value());
-                let var = Vector3::from_fn(|i, _| {
-                    let tau_c = gust_tau_s(self.gust_scale_m[i], tas_mps);
-                    d_b[i] * d_b[i] / GustInWindow::new(tau_c, w).deviation_var
-                });
-                self.gust_var_b.step(var, dt_s);
-            }
+            self.gust_moments
+                .step(GustMoments::of_sample(&c_nb, &wind_n), dt_s);
         }
     }
 
@@ -1196,7 +1253,10 @@ mod tests {
         let a = Vector3::from_fn(|i, _| (-dt * tas / scale[i]).exp());
         let mut g = Vector3::from_fn(|i, _| sigma[i] * normal());
         let steps = (t_end / dt) as usize;
-        for _ in 0..steps {
+        // One estimate per window (each from that window's samples only), after the first.
+        let per_window = (cfg.lpf_window_s / dt).round() as usize;
+        let mut estimates: Vec<Vector3<f64>> = Vec::new();
+        for k in 1..=steps {
             for i in 0..3 {
                 g[i] = a[i] * g[i] + sigma[i] * (1.0 - a[i] * a[i]).sqrt() * normal();
             }
@@ -1214,19 +1274,29 @@ mod tests {
                 Matrix3::identity() * 0.01,
                 c_nb * Vector3::new(tas, 0.0, 0.0),
             );
+            if k % per_window == 0 && k > per_window {
+                estimates.push(est.gust(tas).0);
+            }
         }
-        let (var, held_var, held_cov) = est.gust(tas);
+        let (_, held_var, held_cov) = est.gust(tas);
+        let n = estimates.len() as f64;
         for i in 0..3 {
             let tau_c = scale[i] / tas;
-            // Time average of a squared Gauss–Markov process: relative σ √(2 τ_c / T);
-            // 5 of them.
-            let tol = 5.0 * (2.0 * tau_c / t_end).sqrt();
-            let rel = var[i] / (sigma[i] * sigma[i]) - 1.0;
+            // Unbiased: the mean of the window estimates within 5 standard errors of σ²
+            // (the windows hold a few correlation times each, so they are nearly independent).
+            let mean = estimates.iter().map(|e| e[i]).sum::<f64>() / n;
+            let var_est = estimates.iter().map(|e| (e[i] - mean).powi(2)).sum::<f64>() / (n - 1.0);
+            let s2 = sigma[i] * sigma[i];
             assert!(
-                rel.abs() < tol,
-                "axis {i}: {} vs {} ({rel:+.3}, tol {tol:.3})",
-                var[i],
-                sigma[i] * sigma[i]
+                (mean - s2).abs() < 5.0 * (var_est / n).sqrt(),
+                "axis {i}: mean {mean} vs {s2} (standard error {})",
+                (var_est / n).sqrt()
+            );
+            // And useful: one window's estimate scatters by less than σ² itself.
+            assert!(
+                var_est.sqrt() < s2,
+                "axis {i}: scatter {} vs {s2}",
+                var_est.sqrt()
             );
             // The window covers its length ± one 1-s bin; both fractions fall with it.
             let at = |w: f64| GustInWindow::new(tau_c, w);
@@ -1237,6 +1307,62 @@ mod tests {
                 "{i}"
             );
         }
+    }
+
+    #[test]
+    fn a_wind_change_older_than_the_window_is_not_taken_for_turbulence() {
+        // Circling in a steady wind, which steps by 6 m/s (a SITL setting the wind after the
+        // climb, a front): while the window holds the step the wind estimate is that uncertain
+        // and the spread says so; one window later the wind is steady again and no gust is left.
+        let cfg = PositionFilterConfig::default();
+        let (tas, dt) = (20.0, 0.01);
+        let w0 = Vector3::new(1.0, -2.0, 0.0);
+        let q_at = |t: f64| so3::from_euler_zyx(0.1 * t, 0.3, 0.05);
+        let v_air =
+            |t: f64| q_at(t).to_rotation_matrix().into_inner() * Vector3::new(tas, 0.0, 0.0);
+        let mut est = GnssPhaseEstimates::new(
+            cfg.lpf_window_s,
+            cfg.turbulence_integral_scale_m,
+            &q_at(0.0),
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            w0,
+            Matrix3::identity() * 0.01,
+            v_air(0.0),
+        );
+        let mut t = 0.0;
+        let mut fly = |until_s: f64, wind: Vector3<f64>, est: &mut GnssPhaseEstimates| {
+            while t < until_s {
+                t += dt;
+                let m = Matrix3::identity() * 0.01;
+                est.step(
+                    dt,
+                    &q_at(t),
+                    tas,
+                    2000.0,
+                    1.0,
+                    2100.0,
+                    1.0,
+                    5.0,
+                    wind,
+                    m,
+                    v_air(t),
+                );
+            }
+        };
+        fly(200.0, w0, &mut est);
+        assert!(est.gust(tas).0.max() < 1e-9, "{}", est.gust(tas).0);
+        let w1 = w0 + Vector3::new(6.0, 0.0, 0.0);
+        fly(260.0, w1, &mut est);
+        let inside = est.gust(tas).0;
+        assert!(inside.x + inside.y > 1.0, "{inside}");
+        fly(260.0 + cfg.lpf_window_s + 2.0, w1, &mut est);
+        let after = est.gust(tas).0;
+        assert!(after.max() < 1e-9, "{after}");
+        assert!((est.wind().0 - w1).norm() < 1e-9);
     }
 
     /// A GNSS filter with zero covariance, the air-data bias σ's zeroed and a 30 m/s air
