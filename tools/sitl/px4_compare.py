@@ -1,10 +1,11 @@
 #!/usr/bin/env python3
 """Acceptance checks over repeated PX4 SITL flights (tools/sitl/px4.py output).
 
-usage: px4_compare.py DIR [DIR ...]
+usage: px4_compare.py DIR[:MODE,...] [DIR[:MODE,...] ...]
 
 Each DIR is one repetition holding `wind<deg>_<mode>/summary.toml` flights (modes `open`,
-`closed`, `alone`). Prints, per wind and checkpoint (1, 2, 5, 10 min after the loss):
+`closed`, `alone`); `DIR:alone` takes only the listed modes from it (e.g. the alone flights of
+another daemon commit's repetitions, flown with the same harness). Prints, per wind and checkpoint (1, 2, 5, 10 min after the loss):
 - open loop: ianav's horizontal error against PX4's own estimate in the same flight (PX4
   ignores the daemon there, so it is PX4 alone on that very trajectory);
 - closed loop: PX4's error with the daemon against PX4 alone, flight by flight in the order
@@ -23,9 +24,13 @@ CHECKPOINTS = (1, 2, 5, 10)
 
 def load(dirs):
     flights = {}  # (wind, mode) -> list of summaries, one per directory
-    for d in dirs:
+    for arg in dirs:
+        d, _, only = arg.partition(":")
+        modes = set(only.split(",")) if only else None
         for f in sorted(Path(d).glob("wind*_*/summary.toml")):
             s = tomllib.loads(f.read_text())
+            if modes is not None and s["mode"] not in modes:
+                continue
             if not s.get("completed"):
                 print(f"skipped (not completed): {f.parent}", file=sys.stderr)
                 continue
