@@ -1225,6 +1225,43 @@ mod tests {
 
     /// Exponentially correlated (first-order Gauss–Markov) gusts along the body axes fed as
     /// the raw wind: the measured per-axis variance is the gusts' σ².
+    /// GNSS-phase estimates fed only with a raw wind (fixed pressure altitude, height, ΔT and
+    /// wind covariance): the wind and turbulence tests.
+    fn wind_only_estimates(
+        cfg: &PositionFilterConfig,
+        q_nb: &UnitQuaternion<f64>,
+        wind_n: Vector3<f64>,
+        v_air_n: Vector3<f64>,
+    ) -> GnssPhaseEstimates {
+        GnssPhaseEstimates::new(
+            cfg.lpf_window_s,
+            cfg.turbulence_integral_scale_m,
+            q_nb,
+            2000.0,
+            1.0,
+            2100.0,
+            1.0,
+            5.0,
+            wind_n,
+            Matrix3::identity() * 0.01,
+            v_air_n,
+        )
+    }
+
+    fn step_wind_only(
+        est: &mut GnssPhaseEstimates,
+        dt_s: f64,
+        q_nb: &UnitQuaternion<f64>,
+        tas_mps: f64,
+        wind_n: Vector3<f64>,
+        v_air_n: Vector3<f64>,
+    ) {
+        let cov = Matrix3::identity() * 0.01;
+        est.step(
+            dt_s, q_nb, tas_mps, 2000.0, 1.0, 2100.0, 1.0, 5.0, wind_n, cov, v_air_n,
+        );
+    }
+
     #[test]
     fn gust_intensity_is_measured_from_the_raw_wind() {
         use rand::SeedableRng;
@@ -1237,19 +1274,7 @@ mod tests {
         let q_nb = so3::from_euler_zyx(2.0, 0.1, 0.3);
         let c_nb = q_nb.to_rotation_matrix().into_inner();
         let w0 = Vector3::new(5.0, -3.0, 0.0);
-        let mut est = GnssPhaseEstimates::new(
-            cfg.lpf_window_s,
-            scale,
-            &q_nb,
-            2000.0,
-            1.0,
-            2100.0,
-            1.0,
-            5.0,
-            w0,
-            Matrix3::identity() * 0.01,
-            c_nb * Vector3::new(tas, 0.0, 0.0),
-        );
+        let mut est = wind_only_estimates(&cfg, &q_nb, w0, c_nb * Vector3::new(tas, 0.0, 0.0));
         let a = Vector3::from_fn(|i, _| (-dt * tas / scale[i]).exp());
         let mut g = Vector3::from_fn(|i, _| sigma[i] * normal());
         let steps = (t_end / dt) as usize;
@@ -1261,17 +1286,12 @@ mod tests {
                 g[i] = a[i] * g[i] + sigma[i] * (1.0 - a[i] * a[i]).sqrt() * normal();
             }
             let wind = w0 + c_nb * g;
-            est.step(
+            step_wind_only(
+                &mut est,
                 dt,
                 &q_nb,
                 tas,
-                2000.0,
-                1.0,
-                2100.0,
-                1.0,
-                5.0,
                 wind,
-                Matrix3::identity() * 0.01,
                 c_nb * Vector3::new(tas, 0.0, 0.0),
             );
             if k % per_window == 0 && k > per_window {
@@ -1320,37 +1340,12 @@ mod tests {
         let q_at = |t: f64| so3::from_euler_zyx(0.1 * t, 0.3, 0.05);
         let v_air =
             |t: f64| q_at(t).to_rotation_matrix().into_inner() * Vector3::new(tas, 0.0, 0.0);
-        let mut est = GnssPhaseEstimates::new(
-            cfg.lpf_window_s,
-            cfg.turbulence_integral_scale_m,
-            &q_at(0.0),
-            2000.0,
-            1.0,
-            2100.0,
-            1.0,
-            5.0,
-            w0,
-            Matrix3::identity() * 0.01,
-            v_air(0.0),
-        );
+        let mut est = wind_only_estimates(&cfg, &q_at(0.0), w0, v_air(0.0));
         let mut t = 0.0;
         let mut fly = |until_s: f64, wind: Vector3<f64>, est: &mut GnssPhaseEstimates| {
             while t < until_s {
                 t += dt;
-                let m = Matrix3::identity() * 0.01;
-                est.step(
-                    dt,
-                    &q_at(t),
-                    tas,
-                    2000.0,
-                    1.0,
-                    2100.0,
-                    1.0,
-                    5.0,
-                    wind,
-                    m,
-                    v_air(t),
-                );
+                step_wind_only(est, dt, &q_at(t), tas, wind, v_air(t));
             }
         };
         fly(200.0, w0, &mut est);
