@@ -74,6 +74,45 @@ pub struct RefAttitude {
     pub q_nb: UnitQuaternion<f64>,
 }
 
+/// Sensor-error estimates and their one-sigma uncertainty at a start (paper eqs. of the
+/// sensor models: gyro `E_gyr`, accelerometer `E_acc`, magnetometer `E_mag`, magnetic-model
+/// error `ΔB_n`), per axis.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct SensorErrorPriors {
+    /// Gyro error `E_gyr`, rad/s.
+    pub e_gyr_rps: Vector3<f64>,
+    /// σ of `E_gyr`, rad/s.
+    pub e_gyr_sigma_rps: Vector3<f64>,
+    /// Accelerometer error `E_acc`, m/s².
+    pub e_acc_mps2: Vector3<f64>,
+    /// σ of `E_acc`, m/s².
+    pub e_acc_sigma_mps2: Vector3<f64>,
+    /// Magnetometer error `E_mag`, nT.
+    pub e_mag_nt: Vector3<f64>,
+    /// σ of `E_mag`, nT.
+    pub e_mag_sigma_nt: Vector3<f64>,
+    /// Magnetic-model error `ΔB_n = B_model − B_true`, NED, nT.
+    pub delta_b_n_nt: Vector3<f64>,
+    /// σ of `ΔB_n`, nT.
+    pub delta_b_n_sigma_nt: Vector3<f64>,
+}
+
+/// A start alignment offered by the vehicle: the attitude, angle of attack and sensor-error
+/// estimates from which the navigator starts the INS at the next GNSS fix (`nav::policy`).
+/// The simulator offers its truth with the drawn initial errors (docs/REFERENCES.md A1.9); a
+/// daemon without one starts from the autopilot's [`RefAttitude`] with cold-start priors.
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct Alignment {
+    /// Time of validity, microseconds.
+    pub t_us: u64,
+    /// Attitude body → NED.
+    pub q_nb: UnitQuaternion<f64>,
+    /// Angle of attack, rad.
+    pub aoa_rad: f64,
+    /// Sensor-error estimates.
+    pub priors: SensorErrorPriors,
+}
+
 /// A grey-level camera frame (8 bits per pixel, row-major).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
@@ -102,6 +141,8 @@ pub enum SensorEvent {
     RefAttitude(RefAttitude),
     /// Down-looking camera.
     Frame(Frame),
+    /// A start alignment (boxed: it is rare and large).
+    Alignment(Box<Alignment>),
 }
 
 impl SensorEvent {
@@ -114,6 +155,7 @@ impl SensorEvent {
             SensorEvent::Gnss(s) => s.t_us,
             SensorEvent::RefAttitude(s) => s.t_us,
             SensorEvent::Frame(s) => s.t_us,
+            SensorEvent::Alignment(s) => s.t_us,
         }
     }
 }

@@ -118,7 +118,16 @@ async fn a_failing_worker_ends_the_daemon_with_a_non_zero_exit() {
         );
         // The writer announces it, unless the writer is the one that failed.
         if fault != "writer" {
-            let texts = fake.statustexts();
+            // The datagram was sent before the exit; the fake's receiving task may not have
+            // taken it yet on a loaded machine: give it up to a second.
+            let mut texts = fake.statustexts();
+            for _ in 0..20 {
+                if texts.iter().any(|t| t.ends_with("failed, exiting")) {
+                    break;
+                }
+                tokio::time::sleep(Duration::from_millis(50)).await;
+                texts = fake.statustexts();
+            }
             assert!(
                 texts.iter().any(|t| t.ends_with("failed, exiting")),
                 "{fault}: {texts:?}"

@@ -4,8 +4,8 @@
 //! them (`MavlinkReader` with the daemon's version filter and signing state), payloads parsed
 //! with `MavMessage::parse`, messages handled as `daemon::link::handle_raw` does (autopilot
 //! lock, TIMESYNC, reboot detection, the [`InputDecoder`] with the time mapping, the
-//! [`MonotonicGate`], the INS start rules) and the events fed to the [`Navigator`] as the
-//! navigation thread does (with its re-initialisation when GNSS comes back). The reader task
+//! [`MonotonicGate`]) and the events fed to the [`Navigator`] as the navigation thread does
+//! (the INS start rules are the navigator's own). The reader task
 //! of `link.rs` is async and private, so its steps are repeated here in order: keep them in
 //! step with it. Left out: the outbox (replies are only counted), the GPS_INPUT echo check and
 //! the sequence-gap counters, which touch no navigation state.
@@ -17,22 +17,18 @@
 //! strictly later than the previous one.
 
 use std::cell::Cell;
-use std::collections::VecDeque;
 use std::io::Read;
 use std::rc::Rc;
 use std::sync::Arc;
 
 use ianav::config::{AoaSsaUse, AutopilotKind, ClockSource, DaemonConfig, TemperatureSource};
-use ianav::daemon::health::MIN_IMU_RATE_HZ;
-use ianav::daemon::link::{INIT_ATTITUDE_MAX_AGE_US, INIT_FIXES_WITHOUT_VD, INIT_IMU_WINDOW_US};
-use ianav::daemon::nav_thread::{REINIT_AFTER_US, REINIT_MAX_FIX_GAP_US};
-use ianav::ins::{InsInit, SensorCounters};
+use ianav::ins::SensorCounters;
 use ianav::io::mavlink_in::{
     DecoderConfig, InputCounters, InputDecoder, MAX_ACCEL_MPS2, MAX_GYRO_RPS, MAX_MAG_NT,
     P_RANGE_PA, T_RANGE_K,
 };
 use ianav::io::timesync::{ClockStamp, Kind, MonotonicGate, TimeSync};
-use ianav::nav::{NavSolution, Navigator};
+use ianav::nav::{NavSolution, Navigator, StartKind};
 use ianav::sensors::SensorEvent;
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{MAVLinkMessageRaw, MavlinkReader, MavlinkVersion, Message, SigningConfig};
@@ -312,16 +308,11 @@ pub struct Pipeline {
     ts: TimeSync,
     dec: InputDecoder,
     gate: MonotonicGate,
-    init_sent: bool,
-    flight_init_sent: bool,
-    recent_imu_us: VecDeque<u64>,
-    tas_mps: Option<f64>,
     nav: Navigator,
-    last_sol: Option<NavSolution>,
-    back: Option<(u64, u64)>,
+    /// Air, magnetometer and reference-attitude events since the last IMU sample.
+    since_imu: [u64; 3],
     ledger: InsLedger,
     pushed_before_init: u64,
-    inits_ok: u64,
     /// Counters of this pipeline.
     pub stats: Stats,
 }
@@ -346,7 +337,7 @@ impl Pipeline {
             mag_from_scaled_imu: cfg.input.magnetometer
                 == ianav::config::MagnetometerSource::ScaledImu,
         });
-        let nav = Navigator::new(&cfg.ins)?;
+        let nav = Navigator::new(&ianav::daemon::nav_config(&cfg, MAG_DECIMAL_YEAR))?;
         Ok(Self {
             cfg: Arc::new(cfg),
             now_us,
@@ -354,16 +345,10 @@ impl Pipeline {
             ts,
             dec,
             gate: MonotonicGate::default(),
-            init_sent: false,
-            flight_init_sent: false,
-            recent_imu_us: VecDeque::new(),
-            tas_mps: None,
             nav,
-            last_sol: None,
-            back: None,
+            since_imu: [0; 3],
             ledger: InsLedger::default(),
             pushed_before_init: 0,
-            inits_ok: 0,
             stats: Stats::default(),
         })
     }
@@ -498,7 +483,6 @@ impl Pipeline {
             Some(ClockStamp::Held) => return Ok(()),
             Some(ClockStamp::Reboot | ClockStamp::Jump) => {
                 self.dec.reset();
-                self.recent_imu_us.clear();
                 self.stats.reboots += 1;
             }
             Some(ClockStamp::Fits) | None => {}
@@ -538,97 +522,49 @@ impl Pipeline {
             SensorEvent::Gnss(_) => Kind::Gnss,
             SensorEvent::Frame(_) => Kind::Frame,
             SensorEvent::RefAttitude(_) => Kind::RefAttitude,
+            SensorEvent::Alignment(_) => return Ok(()),
         };
         if !self.gate.accept(kind, ev.t_us()) {
             self.stats.gated += 1;
             return Ok(());
         }
-        if let SensorEvent::Air(air) = &ev {
-            self.tas_mps = Some(air.tas_mps);
-        }
-        if let SensorEvent::Imu(imu) = &ev {
-            self.recent_imu_us.push_back(imu.t_us);
-            while self
-                .recent_imu_us
-                .front()
-                .is_some_and(|t| imu.t_us.saturating_sub(*t) >= INIT_IMU_WINDOW_US)
-            {
-                self.recent_imu_us.pop_front();
-            }
-        }
-        if let SensorEvent::Gnss(fix) = &ev {
-            let imu_ready = self.recent_imu_us.len() as f64
-                >= MIN_IMU_RATE_HZ * INIT_IMU_WINDOW_US as f64 * 1e-6;
-            let vd_ready = self.dec.last_fix_has_vertical_velocity()
-                || self.dec.counters().gnss_no_vd >= INIT_FIXES_WITHOUT_VD;
-            let flying = self
-                .tas_mps
-                .is_some_and(|v| v >= self.cfg.input.start_airspeed_mps);
-            let start = !self.init_sent || (flying && !self.flight_init_sent);
-            if start
-                && imu_ready
-                && vd_ready
-                && let Some(att) = self.dec.attitude()
-                && att.t_us.abs_diff(fix.t_us) <= INIT_ATTITUDE_MAX_AGE_US
-            {
-                let mut init = InsInit::new(att.q_nb, fix.pos, fix.v_ned_mps, MAG_DECIMAL_YEAR);
-                init.valid_at_us = Some(fix.t_us);
-                self.init_sent = true;
-                self.flight_init_sent = flying;
-                self.stats.inits += 1;
-                self.initialise(&init)?;
-            }
-        }
         self.stats.to_nav += 1;
         self.nav_event(&ev)
     }
 
-    fn initialise(&mut self, init: &InsInit) -> Result<(), Violation> {
-        match self.nav.initialise(init) {
-            Ok(()) => {
-                self.inits_ok += 1;
-                self.ledger = InsLedger::default();
-                self.last_sol = None;
-            }
-            Err(_) => self.stats.inits_refused += 1,
-        }
-        ensure!(
-            self.nav.stats().initialisations == self.inits_ok,
-            "navigator initialisations miscounted: {} counted, {} succeeded",
-            self.nav.stats().initialisations,
-            self.inits_ok
-        );
-        Ok(())
-    }
-
-    /// `daemon::nav_thread`'s handling of one event.
+    /// `daemon::nav_thread`'s handling of one event: the navigator's push, with its start rules
+    /// (`nav::policy`). A start hands the new INS the aiding samples since the last IMU sample,
+    /// then the event: the ledger restarts from those.
     fn nav_event(&mut self, ev: &SensorEvent) -> Result<(), Violation> {
-        if let (SensorEvent::Gnss(fix), Some(sol)) = (ev, self.last_sol) {
-            if self.nav.gnss_denied() {
-                let (first, _) = match self.back {
-                    Some((f, n)) if fix.t_us.saturating_sub(n) <= REINIT_MAX_FIX_GAP_US => (f, n),
-                    _ => (fix.t_us, fix.t_us),
-                };
-                self.back = Some((first, fix.t_us));
-                if fix.t_us.saturating_sub(first) >= REINIT_AFTER_US {
-                    self.back = None;
-                    let mut init =
-                        InsInit::new(sol.ins.q_nb, fix.pos, fix.v_ned_mps, MAG_DECIMAL_YEAR);
-                    init.e_gyr_rps = sol.ins.e_gyr_rps;
-                    init.e_acc_mps2 = sol.ins.e_acc_mps2;
-                    init.e_mag_nt = sol.ins.e_mag_nt;
-                    init.delta_b_n_nt = sol.ins.delta_b_n_nt;
-                    init.aoa_rad = sol.ins.aoa_rad;
-                    init.valid_at_us = Some(fix.t_us);
-                    self.stats.reinits += 1;
-                    self.initialise(&init)?;
-                }
-            } else {
-                self.back = None;
+        let before = self.nav.ins_stats().map(ins_tally);
+        let (inits_before, refused_before) = (
+            self.nav.stats().initialisations,
+            self.nav.stats().starts_refused,
+        );
+        let running_before = self.nav.is_initialised();
+        let sol = self.nav.push(ev);
+        let started = self.nav.stats().initialisations > inits_before;
+        self.stats.inits_refused += self.nav.stats().starts_refused - refused_before;
+        if started {
+            match self.nav.last_start().map(|s| s.kind) {
+                Some(StartKind::GnssBack) => self.stats.reinits += 1,
+                _ => self.stats.inits += 1,
             }
+            ensure!(
+                self.nav.stats().initialisations == self.stats.inits + self.stats.reinits,
+                "navigator initialisations miscounted: {} counted, {} starts seen",
+                self.nav.stats().initialisations,
+                self.stats.inits + self.stats.reinits
+            );
+            let [air, mag, ref_attitude] = self.since_imu;
+            self.ledger = InsLedger {
+                air,
+                mag,
+                ref_attitude,
+                ..InsLedger::default()
+            };
         }
-        let running = self.nav.is_initialised();
-        if running {
+        if started || running_before {
             let l = &mut self.ledger;
             match ev {
                 SensorEvent::Imu(_) => l.imu += 1,
@@ -636,14 +572,19 @@ impl Pipeline {
                 SensorEvent::Mag(_) => l.mag += 1,
                 SensorEvent::Gnss(_) => l.gnss += 1,
                 SensorEvent::RefAttitude(_) => l.ref_attitude += 1,
-                SensorEvent::Frame(_) => {}
+                SensorEvent::Frame(_) | SensorEvent::Alignment(_) => {}
             }
-        } else {
+        } else if !matches!(ev, SensorEvent::Alignment(_)) {
             self.pushed_before_init += 1;
         }
-        let before = self.nav.ins_stats().map(ins_tally);
-        let sol = self.nav.push(ev);
-        if let (Some(b), Some(a)) = (before, self.nav.ins_stats().map(ins_tally)) {
+        match ev {
+            SensorEvent::Imu(_) => self.since_imu = [0; 3],
+            SensorEvent::Air(_) => self.since_imu[0] += 1,
+            SensorEvent::Mag(_) => self.since_imu[1] += 1,
+            SensorEvent::RefAttitude(_) => self.since_imu[2] += 1,
+            _ => {}
+        }
+        if let (Some(b), Some(a), false) = (before, self.nav.ins_stats().map(ins_tally), started) {
             self.stats.ins_rejected += a[0] - b[0];
             self.stats.ins_gated += a[1] - b[1];
             self.stats.ins_numerical += a[2] - b[2];
@@ -658,7 +599,6 @@ impl Pipeline {
             self.ledger.last_t_us = Some(sol.ins.t_us);
             self.stats.solutions += 1;
             self.stats.denied_solutions += u64::from(sol.ins.gnss_denied);
-            self.last_sol = Some(sol);
         }
         self.check_ins()
     }
@@ -829,9 +769,9 @@ fn check_event(e: &SensorEvent) -> Result<(), Violation> {
                 "attitude event not a unit quaternion: {s:?}"
             )
         }
-        SensorEvent::Frame(_) => {
+        SensorEvent::Frame(_) | SensorEvent::Alignment(_) => {
             return Err(Violation(
-                "camera frame out of the MAVLink decoder: -".into(),
+                "camera frame or start alignment out of the MAVLink decoder: -".into(),
             ));
         }
     }

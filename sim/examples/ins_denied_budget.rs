@@ -10,8 +10,8 @@
 //! fly without the AoA/AoS vanes; `gyro_rw`: the simulated gyros' bias random walk σ_u,
 //! rad/s^1.5, instead of the paper's; `scenario`: 1 or 2, default 2).
 
-use ianav::ins::InsSolution;
 use ianav::math::wgs84;
+use ianav::nav::NavSolution;
 use ianav_sim::flight::{Flight, FlightObserver, FlightSetup, NavigationMode, TruthSample};
 use nalgebra::{Matrix2, Vector2, Vector3};
 
@@ -57,9 +57,11 @@ struct Row {
 }
 
 impl FlightObserver for Budget {
-    fn nav_solution(&mut self, truth: &TruthSample, sol: &InsSolution) {
+    fn nav_solution(&mut self, truth: &TruthSample, nav: &NavSolution) {
+        // The INS detail: the wind and air data behind the fused solution.
+        let sol = &nav.ins;
         if truth.t_s >= 0.0 {
-            let (att, _) = ianav_sim::metrics::nees(truth, sol).unwrap_or((f64::NAN, f64::NAN));
+            let (att, _) = ianav_sim::metrics::nees(truth, nav).unwrap_or((f64::NAN, f64::NAN));
             let k = usize::from(sol.gnss_denied);
             self.att_nees[k].0 += att;
             self.att_nees[k].1 += 1;

@@ -7,10 +7,11 @@
 
 use ianav::env::atmosphere::{self, AtmosphereOffsets};
 use ianav::env::magnetic::{MagneticGrid, MagneticModel};
-use ianav::ins::{Ins, InsConfig, InsInit, InsSolution};
+use ianav::ins::InsConfig;
 use ianav::math::wgs84::Geodetic;
 use ianav::math::{so3, wgs84};
-use ianav::sensors::{Frame, GnssFix, SensorEvent};
+use ianav::nav::{NavCamera, NavConfig, NavSolution, Navigator};
+use ianav::sensors::{Alignment, Frame, SensorErrorPriors, SensorEvent};
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
 
@@ -278,7 +279,7 @@ pub trait FlightObserver {
     fn estimate_sample(&mut self, _truth: &TruthSample, _estimate: &NavEstimate) {}
     /// Truth and the full INS solution at the output rate (INS navigation only, once the INS
     /// has started), right after `estimate_sample`.
-    fn nav_solution(&mut self, _truth: &TruthSample, _solution: &InsSolution) {}
+    fn nav_solution(&mut self, _truth: &TruthSample, _solution: &NavSolution) {}
     /// A guidance operation started at mission time `t_s`.
     fn operation_started(&mut self, _t_s: f64, _index: usize, _operation: &Operation) {}
 }
@@ -371,15 +372,13 @@ pub struct Flight {
     controller: Controller,
     /// The estimate guidance and control fly on (truth until the INS has a solution).
     estimate: NavEstimate,
-    navigation_mode: NavigationMode,
-    ins_config: InsConfig,
-    /// Initial-error draws of the INS (docs/REFERENCES.md A1.9).
+    /// Initial-error draws of the start alignment (docs/REFERENCES.md A1.9).
     ins_init_rng: rng::Stream,
-    magnetic_decimal_year: f64,
-    ins: Option<Ins>,
-    /// Latest INS solution.
-    ins_solution: Option<InsSolution>,
-    /// Sensor events of the current sample instant, in the order the INS consumes them.
+    /// The navigation core (`None` under truth navigation).
+    nav: Option<Navigator>,
+    /// Latest navigation solution.
+    nav_solution: Option<NavSolution>,
+    /// Sensor events of the current sample instant, in the order the navigator consumes them.
     pending_events: Vec<SensorEvent>,
     /// External horizontal position and the largest age at which it is still used, µs.
     position_aid: Option<(PositionAid, u64)>,
@@ -407,18 +406,19 @@ fn steps_per(field: &'static str, period_s: f64, step_s: f64) -> Result<u64, Fli
     Ok(n as u64)
 }
 
-/// The estimate guidance and control need, from an INS solution.
-pub(crate) fn estimate_from_ins(sol: &InsSolution) -> NavEstimate {
+/// The estimate guidance and control need, from a navigation solution (rates and air data
+/// from its INS detail).
+pub(crate) fn estimate_from_nav(sol: &NavSolution) -> NavEstimate {
     NavEstimate {
         t_us: sol.t_us,
         pos: sol.pos,
         v_ned_mps: sol.v_ned_mps,
         q_nb: sol.q_nb,
-        w_nb_b_rps: sol.w_nb_b_rps,
-        tas_mps: sol.tas_mps,
-        aoa_rad: sol.aoa_rad,
-        aos_rad: sol.aos_rad,
-        hp_m: sol.hp_m,
+        w_nb_b_rps: sol.ins.w_nb_b_rps,
+        tas_mps: sol.ins.tas_mps,
+        aoa_rad: sol.ins.aoa_rad,
+        aos_rad: sol.ins.aos_rad,
+        hp_m: sol.ins.hp_m,
     }
 }
 
@@ -563,6 +563,22 @@ impl Flight {
             }
         };
 
+        let nav = match setup.navigation {
+            NavigationMode::Truth => None,
+            NavigationMode::Ins => {
+                let mut cfg = NavConfig::new(setup.ins.clone(), scn.magnetic_decimal_year);
+                cfg.camera = setup
+                    .camera
+                    .as_ref()
+                    .zip(camera.as_ref())
+                    .map(|(c, fc)| NavCamera {
+                        intrinsics: c.camera,
+                        mounting: fc.mounting.estimate,
+                    });
+                Some(Navigator::new(&cfg)?)
+            }
+        };
+
         Ok(Self {
             seed,
             scenario_name: scn.name.clone(),
@@ -596,12 +612,9 @@ impl Flight {
             guidance,
             controller,
             estimate: navigation.estimate(),
-            navigation_mode: setup.navigation,
-            ins_config: setup.ins.clone(),
             ins_init_rng: rng::stream(seed, "ins.init"),
-            magnetic_decimal_year: scn.magnetic_decimal_year,
-            ins: None,
-            ins_solution: None,
+            nav,
+            nav_solution: None,
             pending_events: Vec::with_capacity(8),
             position_aid: None,
             position_aid_used: false,
@@ -649,10 +662,15 @@ impl Flight {
         &self.estimate
     }
 
-    /// The vehicle's own INS solution (`None` before the first fix or under truth
+    /// The vehicle's own navigation solution (`None` before the first fix or under truth
     /// navigation): what an autopilot derives its reported estimates from (e.g. its wind).
-    pub fn ins_solution(&self) -> Option<&InsSolution> {
-        self.ins_solution.as_ref()
+    pub fn nav_solution(&self) -> Option<&NavSolution> {
+        self.nav_solution.as_ref()
+    }
+
+    /// The navigation core (`None` under truth navigation).
+    pub fn navigator(&self) -> Option<&Navigator> {
+        self.nav.as_ref()
     }
 
     /// Fly on `aid` (see [`PositionAid`]) as long as it is at most `max_age_us` old, from the
@@ -814,7 +832,7 @@ impl Flight {
             let truth = self.truth_sample();
             observer.truth_sample(&truth);
             observer.estimate_sample(&truth, &self.estimate);
-            if let Some(solution) = &self.ins_solution {
+            if let Some(solution) = &self.nav_solution {
                 observer.nav_solution(&truth, solution);
             }
         }
@@ -822,9 +840,13 @@ impl Flight {
             && k.is_multiple_of(cam.steps_per_frame)
             && self.t_us() >= self.warmup_us
         {
-            let frame = self.render_frame(cam, k)?;
+            let frame = SensorEvent::Frame(self.render_frame(cam, k)?);
             self.sensor_events += 1;
-            observer.sensor_event(&SensorEvent::Frame(frame));
+            observer.sensor_event(&frame);
+            if let Some(nav) = self.nav.as_mut() {
+                // No solution: frames do not step the navigation.
+                nav.push(&frame);
+            }
         }
         Ok(())
     }
@@ -903,42 +925,46 @@ impl Flight {
         if k.is_multiple_of(self.steps_per_mag) {
             events.push(SensorEvent::Mag(self.sensors.sample_mag(&truth)));
         }
-        if k.is_multiple_of(self.steps_per_gnss) && t_us <= self.gnss_loss_us {
+        let fix_now = k.is_multiple_of(self.steps_per_gnss) && t_us <= self.gnss_loss_us;
+        let w_in_n =
+            wgs84::omega_ie_n(self.x.pos.lat_rad) + wgs84::omega_en_n(&self.x.pos, &v_ned_mps);
+        let truth_estimate =
+            TruthNavigation::from_truth(t_us, &self.x, &loads.air, &w_in_n, self.hp_m).estimate();
+        if fix_now {
             events.push(SensorEvent::Gnss(self.sensors.sample_gnss(&truth)));
         }
         if k.is_multiple_of(self.steps_per_sensor) {
             events.push(SensorEvent::Imu(self.sensors.sample_imu(&truth)));
         }
-        self.sensor_events += events.len() as u64;
-        let w_in_n =
-            wgs84::omega_ie_n(self.x.pos.lat_rad) + wgs84::omega_en_n(&self.x.pos, &v_ned_mps);
-        let truth_estimate =
-            TruthNavigation::from_truth(t_us, &self.x, &loads.air, &w_in_n, self.hp_m).estimate();
-        // The INS starts at the first GNSS fix, from its position and velocity (as the
-        // authors' filters do); guidance flies on the truth until then (the first second).
-        if self.navigation_mode == NavigationMode::Ins && self.ins.is_none() {
-            let first_fix = events.iter().find_map(|e| match e {
-                SensorEvent::Gnss(fix) => Some(*fix),
-                _ => None,
-            });
-            if let Some(fix) = first_fix {
-                self.ins = Some(self.initial_ins(&truth_estimate, &fix)?);
-            }
+        // The navigator starts the INS at the first GNSS fix (as the authors' filters do) from
+        // the start alignment offered just before it; guidance flies on the truth until then
+        // (the first second). Drawn after the IMU sample: the true sensor errors it is drawn
+        // about are those of this instant's samples.
+        if fix_now && self.nav.as_ref().is_some_and(|n| !n.is_initialised()) {
+            let alignment = self.start_alignment(&truth_estimate);
+            let at = events
+                .iter()
+                .position(|e| matches!(e, SensorEvent::Gnss(_)))
+                .unwrap_or(events.len());
+            events.insert(at, SensorEvent::Alignment(Box::new(alignment)));
         }
+        self.sensor_events += events
+            .iter()
+            .filter(|e| !matches!(e, SensorEvent::Alignment(_)))
+            .count() as u64;
         for event in &events {
             observer.sensor_event(event);
-            if let Some(solution) = self.ins.as_mut().and_then(|ins| ins.push(event)) {
-                self.ins_solution = Some(solution);
+            if let Some(solution) = self.nav.as_mut().and_then(|nav| nav.push(event)) {
+                self.nav_solution = Some(solution);
             }
         }
         self.pending_events = events;
-        self.estimate = match (&self.ins_solution, self.navigation_mode) {
-            (Some(sol), NavigationMode::Ins) => estimate_from_ins(sol),
-            _ => truth_estimate,
+        self.estimate = match &self.nav_solution {
+            Some(sol) => estimate_from_nav(sol),
+            None => truth_estimate,
         };
         self.position_aid_used = false;
-        if let (Some((aid, max_age_us)), Some(_), NavigationMode::Ins) =
-            (self.position_aid, &self.ins_solution, self.navigation_mode)
+        if let (Some((aid, max_age_us)), Some(_)) = (self.position_aid, &self.nav_solution)
             && t_us.abs_diff(aid.t_us) <= max_age_us
         {
             apply_position_aid(&mut self.estimate, &aid, t_us);
@@ -947,15 +973,14 @@ impl Flight {
         Ok(())
     }
 
-    /// The INS started at the current instant with the initial errors of docs/REFERENCES.md A1.9:
-    /// attitude off by 0.1°·N about a random axis, sensor-error estimates within 1 % (10 % for
-    /// the magnetic-model error) of the truth; position and velocity from the GNSS fix.
-    fn initial_ins(&mut self, truth: &NavEstimate, fix: &GnssFix) -> Result<Ins, FlightError> {
+    /// The start alignment the simulated vehicle offers at the first fix, with the initial
+    /// errors of docs/REFERENCES.md A1.9: attitude off by 0.1°·N about a random axis,
+    /// sensor-error estimates within 1 % (10 % for the magnetic-model error) of the truth.
+    fn start_alignment(&mut self, truth: &NavEstimate) -> Alignment {
         let r = &mut self.ins_init_rng;
         let axis = Vector3::new(rng::normal(r), rng::normal(r), rng::normal(r));
         let angle_rad = (0.1_f64).to_radians() * rng::normal(r);
         let q_err = so3::exp(&(axis.try_normalize(1e-12).unwrap_or(Vector3::x()) * angle_rad));
-        let (pos, v_ned_mps) = (fix.pos, fix.v_ned_mps);
         let errors = self.sensors.true_errors();
         let mut scaled = |v: Vector3<f64>, rel: f64| -> (Vector3<f64>, Vector3<f64>) {
             (
@@ -967,24 +992,21 @@ impl Flight {
         let (e_acc_mps2, e_acc_sigma_mps2) = scaled(errors.e_acc_mps2, 0.01);
         let (e_mag_nt, e_mag_sigma_nt) = scaled(errors.e_mag_nt, 0.01);
         let (delta_b_n_nt, delta_b_n_sigma_nt) = scaled(-self.magnetic.error_ned_nt, 0.1);
-        let init = InsInit {
+        Alignment {
+            t_us: truth.t_us,
             q_nb: q_err * truth.q_nb,
-            pos,
-            v_ned_mps,
-            e_gyr_rps,
-            e_gyr_sigma_rps,
-            e_acc_mps2,
-            e_acc_sigma_mps2,
-            e_mag_nt,
-            e_mag_sigma_nt,
-            delta_b_n_nt,
-            delta_b_n_sigma_nt,
             aoa_rad: truth.aoa_rad,
-            mag_decimal_year: self.magnetic_decimal_year,
-            // Drawn at the instant of the first IMU sample.
-            valid_at_us: None,
-        };
-        Ok(Ins::new(&self.ins_config, &init)?)
+            priors: SensorErrorPriors {
+                e_gyr_rps,
+                e_gyr_sigma_rps,
+                e_acc_mps2,
+                e_acc_sigma_mps2,
+                e_mag_nt,
+                e_mag_sigma_nt,
+                delta_b_n_nt,
+                delta_b_n_sigma_nt,
+            },
+        }
     }
 
     /// Fly to the end of the mission, reporting progress (mission seconds) to `progress`.
@@ -1043,7 +1065,7 @@ mod tests {
     fn a_fresh_position_aid_replaces_the_horizontal_estimate_and_a_stale_one_does_not() {
         let setup = FlightSetup::builtin(2).unwrap();
         let mut flight = Flight::new(&setup, 3).unwrap();
-        while flight.ins_solution.is_none() {
+        while flight.nav_solution.is_none() {
             flight.step(&mut NoObserver).unwrap();
         }
         let t_us = flight.t_us();
@@ -1064,7 +1086,7 @@ mod tests {
         let carried = wgs84::ned_difference_m(&flight.truth().pos, &est.pos);
         assert!((carried.x - 1_000.0).abs() < 2.0, "{carried:?}");
         assert!(carried.y.abs() < 2.0, "{carried:?}");
-        let ins_pos = flight.ins_solution.unwrap().pos;
+        let ins_pos = flight.nav_solution.unwrap().pos;
         assert!(
             (est.pos.h_m - ins_pos.h_m).abs() < 1e-9,
             "height stays the INS's"

@@ -441,7 +441,7 @@ impl<O: ianav_sim::flight::FlightObserver> ianav_sim::flight::FlightObserver for
     fn nav_solution(
         &mut self,
         truth: &ianav_sim::flight::TruthSample,
-        solution: &ianav::ins::InsSolution,
+        solution: &ianav::nav::NavSolution,
     ) {
         self.inner.nav_solution(truth, solution);
     }

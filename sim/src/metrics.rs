@@ -4,8 +4,8 @@
 //! error, horizontal error in metres and as a percentage of the distance flown. Errors are
 //! `estimate − truth`.
 
-use ianav::ins::InsSolution;
 use ianav::math::{angle, so3, wgs84};
+use ianav::nav::NavSolution;
 
 use crate::control::NavEstimate;
 use crate::flight::{FlightObserver, TruthSample};
@@ -77,12 +77,12 @@ pub fn nse(truth: &TruthSample, estimate: &NavEstimate) -> NseSample {
     }
 }
 
-/// Normalised estimation error squared of the INS attitude and velocity: `eᵀ P⁻¹ e` with
+/// Normalised estimation error squared of the navigation attitude and velocity: `eᵀ P⁻¹ e` with
 /// the attitude error in the filter's own tangent convention (`q_truth = q̂ ∘ Exp(δθ)`, so
 /// `δθ = Log(q̂⁻¹ q_truth)`) against its 3×3 attitude covariance, and the NED ground-velocity
 /// error against the velocity covariance. Each is χ²(3) when the filter is consistent. `None`
 /// for a covariance that cannot be inverted.
-pub fn nees(truth: &TruthSample, sol: &InsSolution) -> Option<(f64, f64)> {
+pub fn nees(truth: &TruthSample, sol: &NavSolution) -> Option<(f64, f64)> {
     let d_theta = so3::log(&(sol.q_nb.inverse() * truth.q_nb));
     let d_v = sol.v_ned_mps - truth.v_ned_mps;
     let att = sol.cov.attitude_rad2.try_inverse()?;
@@ -90,11 +90,11 @@ pub fn nees(truth: &TruthSample, sol: &InsSolution) -> Option<(f64, f64)> {
     Some((d_theta.dot(&(att * d_theta)), d_v.dot(&(vel * d_v))))
 }
 
-/// Normalised estimation error squared of the INS horizontal position: the north and east
+/// Normalised estimation error squared of the navigation horizontal position: the north and east
 /// components of the error (local level frame at the truth) against the 2×2 horizontal block
 /// of the position covariance; χ²(2) when the filter is consistent. `None` for a covariance
 /// that cannot be inverted.
-pub fn nees_horizontal_position(truth: &TruthSample, sol: &InsSolution) -> Option<f64> {
+pub fn nees_horizontal_position(truth: &TruthSample, sol: &NavSolution) -> Option<f64> {
     let d = wgs84::ned_difference_m(&truth.pos, &sol.pos);
     let e = nalgebra::Vector2::new(d.x, d.y);
     let p = sol

@@ -8,14 +8,14 @@ use std::fs::File;
 use std::io::{self, BufWriter, Write};
 use std::path::{Path, PathBuf};
 
-use ianav::ins::InsSolution;
 use ianav::io::sensor_log::SensorLogWriter;
 use ianav::math::so3;
 use ianav::math::wgs84::{self, Geodetic};
+use ianav::nav::NavSolution;
 use ianav::sensors::SensorEvent;
 
 use crate::control::Operation;
-use crate::flight::{FlightObserver, FlightSummary, TruthSample, estimate_from_ins};
+use crate::flight::{FlightObserver, FlightSummary, TruthSample, estimate_from_nav};
 use crate::metrics;
 use crate::plots::{self, Chart, PALETTE, Series};
 
@@ -518,7 +518,7 @@ impl FlightObserver for RunWriter {
         self.samples_seen += 1;
     }
 
-    fn nav_solution(&mut self, truth: &TruthSample, sol: &InsSolution) {
+    fn nav_solution(&mut self, truth: &TruthSample, sol: &NavSolution) {
         if self.navigation.is_none() {
             let opened = create(&self.dir.join(files::NAVIGATION)).and_then(|mut w| {
                 writeln!(w, "{NAVIGATION_HEADER}").map_err(|source| OutputError::Io {
@@ -537,20 +537,20 @@ impl FlightObserver for RunWriter {
                 }
             }
         }
-        let est = estimate_from_ins(sol);
+        let est = estimate_from_nav(sol);
         let e = metrics::nse(truth, &est);
         let euler_deg = so3::euler_zyx(&sol.q_nb).map(f64::to_degrees);
         let dv = sol.v_ned_mps - truth.v_ned_mps;
         let sd = |m: &nalgebra::Matrix3<f64>, i: usize| m[(i, i)].max(0.0).sqrt();
         let c = &sol.cov;
-        let gyr_dps = sol.e_gyr_rps.map(f64::to_degrees);
+        let gyr_dps = sol.ins.e_gyr_rps.map(f64::to_degrees);
         let nees = metrics::nees(truth, sol).unwrap_or((f64::NAN, f64::NAN));
         let point = NavPoint {
             nse: e,
             sigma_hor_m: (sd(&c.position_m2, 0).powi(2) + sd(&c.position_m2, 1).powi(2)).sqrt(),
-            gnss_denied: sol.gnss_denied,
+            gnss_denied: sol.ins_status.gnss_denied,
         };
-        if !sol.gnss_denied {
+        if !sol.ins_status.gnss_denied {
             self.nav_before_loss = Some(point);
         }
         self.nav_last = Some(point);
@@ -566,7 +566,7 @@ impl FlightObserver for RunWriter {
              {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.2},{:.2},{:.3e},{:.3e},{:.3e},\
              {:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{}",
             truth.t_s,
-            u8::from(sol.gnss_denied),
+            u8::from(sol.ins_status.gnss_denied),
             sol.pos.lat_rad.to_degrees(),
             sol.pos.lon_rad.to_degrees(),
             sol.pos.h_m,
@@ -594,32 +594,34 @@ impl FlightObserver for RunWriter {
             sd(&c.position_m2, 0),
             sd(&c.position_m2, 1),
             sd(&c.position_m2, 2),
-            sol.wind_ned_mps.x,
-            sol.wind_ned_mps.y,
+            sol.ins.wind_ned_mps.x,
+            sol.ins.wind_ned_mps.y,
             truth.wind_ned_mps.x,
             truth.wind_ned_mps.y,
-            sol.tas_mps,
+            sol.ins.tas_mps,
             truth.air.tas_mps,
-            sol.delta_t_k,
+            sol.ins.delta_t_k,
             truth.offsets.delta_t_k,
-            sol.delta_p_pa,
+            sol.ins.delta_p_pa,
             truth.offsets.delta_p_pa,
             gyr_dps.x,
             gyr_dps.y,
             gyr_dps.z,
-            sol.w_nb_b_rps.x.to_degrees(),
-            sol.w_nb_b_rps.y.to_degrees(),
-            sol.w_nb_b_rps.z.to_degrees(),
+            sol.ins.w_nb_b_rps.x.to_degrees(),
+            sol.ins.w_nb_b_rps.y.to_degrees(),
+            sol.ins.w_nb_b_rps.z.to_degrees(),
             truth.w_nb_b_rps.x.to_degrees(),
             truth.w_nb_b_rps.y.to_degrees(),
             truth.w_nb_b_rps.z.to_degrees(),
-            sol.aoa_rad.to_degrees(),
+            sol.ins.aoa_rad.to_degrees(),
             truth.air.aoa_rad.to_degrees(),
-            sol.aos_rad.to_degrees(),
+            sol.ins.aos_rad.to_degrees(),
             truth.air.aos_rad.to_degrees(),
             nees.0,
             nees.1,
-            sol.gnss_nis.map_or(String::new(), |v| format!("{v:.3}")),
+            sol.ins
+                .gnss_nis
+                .map_or(String::new(), |v| format!("{v:.3}")),
         );
         if let Some(w) = self.navigation.as_mut() {
             let result = writeln!(w, "{}", self.line);

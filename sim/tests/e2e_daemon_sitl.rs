@@ -95,7 +95,7 @@ impl FlightObserver for Offline {
             },
         );
     }
-    fn nav_solution(&mut self, t: &TruthSample, s: &ianav::ins::InsSolution) {
+    fn nav_solution(&mut self, t: &TruthSample, s: &ianav::nav::NavSolution) {
         // What the PX4 vehicle reports as ATTITUDE (its own INS, 50 Hz), for the replay.
         if t.t_us.is_multiple_of(20_000) {
             self.events.push(SensorEvent::RefAttitude(RefAttitude {

@@ -14,7 +14,7 @@
 
 use std::sync::OnceLock;
 
-use ianav::ins::InsSolution;
+use ianav::nav::NavSolution;
 use ianav_sim::flight::{Flight, FlightObserver, FlightSetup, NavigationMode, TruthSample};
 use ianav_sim::metrics;
 
@@ -39,7 +39,7 @@ struct NeesRecorder {
 }
 
 impl FlightObserver for NeesRecorder {
-    fn nav_solution(&mut self, truth: &TruthSample, sol: &InsSolution) {
+    fn nav_solution(&mut self, truth: &TruthSample, sol: &NavSolution) {
         if truth.t_s < 0.0 {
             return;
         }
@@ -48,7 +48,7 @@ impl FlightObserver for NeesRecorder {
             metrics::nees_horizontal_position(truth, sol).expect("invertible covariance");
         self.samples.push(Nees {
             t_s: truth.t_s,
-            gnss_denied: sol.gnss_denied,
+            gnss_denied: sol.ins_status.gnss_denied,
             attitude,
             velocity,
             position_hor,

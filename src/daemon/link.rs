@@ -15,7 +15,6 @@
 //! them: they are invisible to the counters (rust-mavlink #209), and the robustness tests
 //! check instead that valid traffic after them still gets through.
 
-use std::collections::VecDeque;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -24,11 +23,9 @@ use mavlink::{
 };
 use tokio::sync::{mpsc, watch};
 
-use super::health::MIN_IMU_RATE_HZ;
 use super::nav_thread::NavInput;
 use super::{Clock, Outbox, Shared, stopped_after};
 use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig, MagnetometerSource};
-use crate::ins::InsInit;
 use crate::io::mavlink_in::{self, DecoderConfig, InputDecoder};
 use crate::io::mavlink_out;
 use crate::io::timesync::{self, ClockStamp, Kind, MonotonicGate, TimeSync};
@@ -37,15 +34,6 @@ use mavlink::dialects::ardupilotmega as apm;
 
 /// The connection type.
 pub type Conn = mavlink::AsyncConnection<apm::MavMessage>;
-
-/// Largest difference between the ATTITUDE and the GNSS fix used to start the INS, µs.
-pub const INIT_ATTITUDE_MAX_AGE_US: u64 = 1_000_000;
-/// The INS starts only once the IMU stream runs at the rate solutions are published at
-/// ([`MIN_IMU_RATE_HZ`]) over this window: before the interval requests are granted an
-/// autopilot streams its IMU at 1 Hz, and an INS started on that integrates seconds-long steps.
-pub const INIT_IMU_WINDOW_US: u64 = 1_000_000;
-/// Fixes without a down velocity after which the INS starts anyway (at 0 m/s down).
-pub const INIT_FIXES_WITHOUT_VD: u64 = 10;
 
 async fn connect(cfg: &DaemonConfig) -> std::io::Result<Conn> {
     let mut conn = super::transport::open(&cfg.mavlink.connection).await?;
@@ -310,13 +298,6 @@ struct ReaderState {
     /// The sequence counts before the first frame of a clock being confirmed: a confirmed
     /// reboot restarts the sequence, which is no loss.
     seq_before_candidate: Option<SequenceTracker>,
-    init_sent: bool,
-    /// Times of the IMU samples of the last [`INIT_IMU_WINDOW_US`], µs.
-    recent_imu_us: VecDeque<u64>,
-    /// True airspeed of the latest air-data sample, m/s.
-    tas_mps: Option<f64>,
-    /// The INS has been started at a flying airspeed.
-    flight_init_sent: bool,
 }
 
 /// Connect (with back-off), read, reconnect on transport errors.
@@ -356,10 +337,6 @@ pub(super) async fn reader(
         gate: MonotonicGate::default(),
         seq: SequenceTracker::default(),
         seq_before_candidate: None,
-        init_sent: false,
-        recent_imu_us: VecDeque::new(),
-        tas_mps: None,
-        flight_init_sent: false,
     };
     let mut backoff = Duration::from_millis(100);
     loop {
@@ -479,7 +456,6 @@ async fn handle_raw(
                 st.dec.reset();
                 st.seq = SequenceTracker::default();
                 st.seq_before_candidate = None;
-                st.recent_imu_us.clear();
                 shared.count(|c| c.autopilot_changes += 1);
                 outbox.status(
                     apm::MavSeverity::MAV_SEVERITY_WARNING,
@@ -542,7 +518,6 @@ async fn handle_raw(
             }
             st.seq.reset();
             st.dec.reset();
-            st.recent_imu_us.clear();
             shared.state(|s| s.request_generation += 1);
             shared.count(|c| c.autopilot_reboots += 1);
             outbox.status(
@@ -553,7 +528,6 @@ async fn handle_raw(
         Some(ClockStamp::Jump) => {
             st.seq_before_candidate = None;
             st.dec.reset();
-            st.recent_imu_us.clear();
             shared.state(|s| s.request_generation += 1);
             shared.count(|c| c.autopilot_time_jumps += 1);
             outbox.status(
@@ -611,6 +585,8 @@ async fn handle_raw(
             SensorEvent::Gnss(_) => Kind::Gnss,
             SensorEvent::Frame(_) => Kind::Frame,
             SensorEvent::RefAttitude(_) => Kind::RefAttitude,
+            // Not decoded from MAVLink.
+            SensorEvent::Alignment(_) => continue,
         };
         if !st.gate.accept(kind, ev.t_us()) {
             let (n, r) = (st.gate.rejected, st.gate.repeated);
@@ -619,19 +595,6 @@ async fn handle_raw(
                 c.time_repeated = r;
             });
             continue;
-        }
-        if let SensorEvent::Air(air) = &ev {
-            st.tas_mps = Some(air.tas_mps);
-        }
-        if let SensorEvent::Imu(imu) = &ev {
-            st.recent_imu_us.push_back(imu.t_us);
-            while st
-                .recent_imu_us
-                .front()
-                .is_some_and(|t| imu.t_us.saturating_sub(*t) >= INIT_IMU_WINDOW_US)
-            {
-                st.recent_imu_us.pop_front();
-            }
         }
         if let SensorEvent::Gnss(fix) = &ev {
             let e7 = |rad: f64| (rad.to_degrees() * 1e7).round() as i64;
@@ -653,47 +616,14 @@ async fn handle_raw(
                 s.last_fix_us = Some(rx_us);
                 s.last_fix_sensor_us = Some(fix.t_us);
             });
-            let imu_ready =
-                st.recent_imu_us.len() as f64 >= MIN_IMU_RATE_HZ * INIT_IMU_WINDOW_US as f64 * 1e-6;
-            // GPS_RAW_INT has no down velocity: the INS starts from a fix that has
-            // GLOBAL_POSITION_INT's (a descent taken for level flight throws the first seconds
-            // off), unless the autopilot never sends it.
-            let vd_ready = st.dec.last_fix_has_vertical_velocity()
-                || st.dec.counters().gnss_no_vd >= INIT_FIXES_WITHOUT_VD;
-            let flying = st
-                .tas_mps
-                .is_some_and(|v| v >= cfg.input.start_airspeed_mps);
-            // Started on the ground (an autopilot with our GPS_INPUT as a receiver does not arm
-            // without it), the INS is started again once flying: its models are those of a
-            // flying aircraft, and through the take-off roll it went wrong.
-            let start = !st.init_sent || (flying && !st.flight_init_sent);
-            if start && imu_ready && vd_ready {
-                match st.dec.attitude() {
-                    Some(att) if att.t_us.abs_diff(fix.t_us) <= INIT_ATTITUDE_MAX_AGE_US => {
-                        let year = if cfg.navigation.mag_decimal_year != 0.0 {
-                            cfg.navigation.mag_decimal_year
-                        } else {
-                            clock.decimal_year()
-                        };
-                        let mut init = InsInit::new(att.q_nb, fix.pos, fix.v_ned_mps, year);
-                        init.valid_at_us = Some(fix.t_us);
-                        if !st.init_sent {
-                            let und = st.dec.undulation_m().unwrap_or(0.0);
-                            shared.state(|s| {
-                                s.origin = Some(fix.pos);
-                                s.undulation_m = und;
-                            });
-                        } else {
-                            tracing::info!("flying: INS started again for flight");
-                        }
-                        if events.send(NavInput::Init(Box::new(init))).await.is_err() {
-                            return false;
-                        }
-                        st.init_sent = true;
-                        st.flight_init_sent = flying;
+            // The undulation at the start's fix gives the origin's MSL altitude (the start
+            // itself is the navigator's: `nav::policy`).
+            if let Some(und) = st.dec.undulation_m() {
+                shared.state(|s| {
+                    if s.origin.is_none() {
+                        s.undulation_m = und;
                     }
-                    _ => tracing::debug!("GNSS fix without a recent ATTITUDE: INS not started"),
-                }
+                });
             }
         }
         if events.send(NavInput::Event(ev, rx_at)).await.is_err() {

@@ -567,6 +567,15 @@ enum Ending {
     Failed(DaemonError),
 }
 
+/// The navigation core's settings for this daemon: its INS, started by the core's rules with
+/// the magnetic model of `mag_decimal_year`, and started again at the first fix at
+/// `input.start_airspeed_mps` when first started below it (on the ground).
+pub fn nav_config(cfg: &DaemonConfig, mag_decimal_year: f64) -> crate::nav::NavConfig {
+    let mut nav = crate::nav::NavConfig::new(cfg.ins.clone(), mag_decimal_year);
+    nav.start.restart_airspeed_mps = Some(cfg.input.start_airspeed_mps);
+    nav
+}
+
 /// Run the daemon until `handle.stop()` or a fatal error. The caller provides the runtime.
 ///
 /// Every worker is supervised: one that panics, or ends while it should run, stops the daemon
@@ -581,15 +590,15 @@ pub async fn run(
     let shared = Arc::new(Shared::default());
     let (stop_tx, stop_rx) = watch::channel(false);
     let clock = Clock::new();
-    let nav = crate::nav::Navigator::new(&cfg.ins)?;
-    let (event_tx, event_rx) = mpsc::channel(EVENT_CHANNEL);
-    let frames = Arc::new(nav_thread::FrameQueue::new(cfg.camera.queue_frames));
-    let (latest_tx, latest_rx) = watch::channel(None::<Latest>);
     let year = if cfg.navigation.mag_decimal_year != 0.0 {
         cfg.navigation.mag_decimal_year
     } else {
         clock.decimal_year()
     };
+    let nav = crate::nav::Navigator::new(&nav_config(&cfg, year))?;
+    let (event_tx, event_rx) = mpsc::channel(EVENT_CHANNEL);
+    let frames = Arc::new(nav_thread::FrameQueue::new(cfg.camera.queue_frames));
+    let (latest_tx, latest_rx) = watch::channel(None::<Latest>);
     let (out_tx, out_rx) = mpsc::channel(OUTBOX);
     let outbox = Outbox {
         tx: out_tx,
@@ -600,7 +609,6 @@ pub async fn run(
     let (nav_exit_tx, nav_exit_rx) = tokio::sync::oneshot::channel();
     let nav_join = nav_thread::spawn(
         nav,
-        year,
         event_rx,
         frames.clone(),
         latest_tx,

@@ -2,12 +2,9 @@
 //! bounded channel of sensor events (the sender waits when it is full: IMU, air, magnetometer
 //! and GNSS are never dropped) and a small frame queue that drops its oldest frame when the
 //! thread is late. No clock here: it only feeds the synchronous core and publishes the latest
-//! solution.
-//!
-//! GNSS return: the INS latches its GNSS-denied mode. When valid fixes have come back
-//! continuously for [`REINIT_AFTER_US`] (sensor time), the thread re-initialises the INS at the
-//! newest fix with the current attitude and sensor-error estimates (cold-start σ). The reset
-//! counter increments, so consumers (ODOMETRY `reset_counter`, STATUSTEXT) see the jump.
+//! solution. When to start and re-initialise the INS is the navigator's (`nav::policy`); the
+//! thread logs each start, and the reset counter tells consumers (ODOMETRY `reset_counter`,
+//! STATUSTEXT) of the jump.
 
 use std::collections::VecDeque;
 use std::sync::{Arc, Mutex};
@@ -16,20 +13,12 @@ use std::time::Instant;
 use tokio::sync::{mpsc, watch};
 
 use super::{Latest, Shared};
-use crate::ins::InsInit;
-use crate::nav::Navigator;
+use crate::nav::{Navigator, StartKind};
 use crate::sensors::{Frame, SensorEvent};
-
-/// Continuous valid GNSS after a loss that re-initialises the INS, µs.
-pub const REINIT_AFTER_US: u64 = 5_000_000;
-/// A gap between fixes longer than this restarts the count, µs.
-pub const REINIT_MAX_FIX_GAP_US: u64 = 1_500_000;
 
 /// Input of the navigation thread.
 #[derive(Debug)]
 pub enum NavInput {
-    /// (Re)initialise the INS.
-    Init(Box<InsInit>),
     /// A sensor event and the reception time of its message.
     Event(SensorEvent, Instant),
     /// Frames are waiting in the [`FrameQueue`] (sent with `try_send`: when the channel is
@@ -111,7 +100,6 @@ impl Drop for Exit {
 #[allow(clippy::too_many_arguments)] // the thread's inputs and outputs, each used once
 pub fn spawn(
     mut nav: Navigator,
-    mag_decimal_year: f64,
     mut rx: mpsc::Receiver<NavInput>,
     frames: Arc<FrameQueue>,
     latest: watch::Sender<Option<Latest>>,
@@ -127,9 +115,7 @@ pub fn spawn(
             let _exit = exit;
             let mut since_sync = 0_u32;
             let mut noisy_reported = 0_u64;
-            let mut last: Option<crate::nav::NavSolution> = None;
-            // (first, newest) fix time of the current run of fixes while GNSS-denied.
-            let mut back: Option<(u64, u64)> = None;
+            let mut starts_logged = 0_u64;
             // The denied-mode covariance budget is logged once per loss.
             let mut budget_logged = false;
             while let Some(input) = rx.blocking_recv() {
@@ -145,59 +131,17 @@ pub fn spawn(
                     nav.push(&SensorEvent::Frame(f));
                 }
                 match input {
-                    NavInput::Init(init) => match nav.initialise(&init) {
-                        Ok(()) => tracing::info!(
-                            lat_deg = init.pos.lat_rad.to_degrees(),
-                            lon_deg = init.pos.lon_rad.to_degrees(),
-                            h_m = init.pos.h_m,
-                            "INS initialised"
-                        ),
-                        Err(e) => tracing::warn!("INS initialisation refused: {e}"),
-                    },
                     NavInput::FramesReady => {}
                     NavInput::Event(ev, rx_at) => {
                         if let SensorEvent::Gnss(fix) = &ev {
                             publisher.on_fix(fix.t_us);
                         }
-                        if let (SensorEvent::Gnss(fix), Some(sol)) = (&ev, last) {
-                            if nav.gnss_denied() {
-                                let (first, _) = match back {
-                                    Some((f, n))
-                                        if fix.t_us.saturating_sub(n) <= REINIT_MAX_FIX_GAP_US =>
-                                    {
-                                        (f, n)
-                                    }
-                                    _ => (fix.t_us, fix.t_us),
-                                };
-                                back = Some((first, fix.t_us));
-                                if fix.t_us.saturating_sub(first) >= REINIT_AFTER_US {
-                                    back = None;
-                                    let mut init = InsInit::new(
-                                        sol.ins.q_nb,
-                                        fix.pos,
-                                        fix.v_ned_mps,
-                                        mag_decimal_year,
-                                    );
-                                    init.e_gyr_rps = sol.ins.e_gyr_rps;
-                                    init.e_acc_mps2 = sol.ins.e_acc_mps2;
-                                    init.e_mag_nt = sol.ins.e_mag_nt;
-                                    init.delta_b_n_nt = sol.ins.delta_b_n_nt;
-                                    init.aoa_rad = sol.ins.aoa_rad;
-                                    init.valid_at_us = Some(fix.t_us);
-                                    match nav.initialise(&init) {
-                                        Ok(()) => tracing::warn!(
-                                            "GNSS back for 5 s: INS re-initialised at the fix"
-                                        ),
-                                        Err(e) => {
-                                            tracing::warn!("INS re-initialisation refused: {e}")
-                                        }
-                                    }
-                                }
-                            } else {
-                                back = None;
-                            }
+                        let sol = nav.push(&ev);
+                        if nav.stats().initialisations > starts_logged {
+                            starts_logged = nav.stats().initialisations;
+                            log_start(&nav, &shared);
                         }
-                        if let Some(sol) = nav.push(&ev) {
+                        if let Some(sol) = sol {
                             if let Some(nis) = sol.ins.gnss_nis {
                                 let w = sol.ins.wind_ned_mps;
                                 tracing::debug!(
@@ -237,7 +181,6 @@ pub fn spawn(
                             } else if !sol.ins.gnss_denied {
                                 budget_logged = false;
                             }
-                            last = Some(sol);
                             publisher.on_solution(&sol, rx_at);
                             latest.send_replace(Some(Latest { sol, imu_rx: rx_at }));
                             shared.count(|c| c.solutions += 1);
@@ -251,7 +194,7 @@ pub fn spawn(
                     if n.imu_noisier_than_configured > noisy_reported {
                         noisy_reported = n.imu_noisier_than_configured;
                         if let Some(m) = nav.imu_noise() {
-                            let cfg = nav.config();
+                            let cfg = &nav.config().ins;
                             tracing::warn!(
                                 gyro_ratio = m.gyro_ratio,
                                 accel_ratio = m.accel_ratio,
@@ -271,6 +214,27 @@ pub fn spawn(
                 }
             }
         })
+}
+
+/// Log a start of the navigator's; the first fixes the local frame's origin.
+fn log_start(nav: &Navigator, shared: &Shared) {
+    let Some(start) = nav.last_start() else {
+        return;
+    };
+    let pos = start.pos;
+    match start.kind {
+        StartKind::First => {
+            shared.state(|s| s.origin = Some(pos));
+            tracing::info!(
+                lat_deg = pos.lat_rad.to_degrees(),
+                lon_deg = pos.lon_rad.to_degrees(),
+                h_m = pos.h_m,
+                "INS initialised"
+            );
+        }
+        StartKind::Flying => tracing::info!("flying: INS started again for flight"),
+        StartKind::GnssBack => tracing::warn!("GNSS back for 5 s: INS re-initialised at the fix"),
+    }
 }
 
 #[cfg(test)]

@@ -36,8 +36,11 @@ pub fn preflight(path: &Path) -> Result<Preflight, ConfigError> {
             e.to_string(),
         )
     })?;
-    crate::nav::Navigator::new(&config.ins)
-        .map_err(|e| invalid("ins", "[table]", e.to_string()))?;
+    crate::nav::Navigator::new(&super::nav_config(
+        &config,
+        config.navigation.mag_decimal_year,
+    ))
+    .map_err(|e| invalid("ins", "[table]", e.to_string()))?;
     Ok(Preflight {
         config,
         log_filter,

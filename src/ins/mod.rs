@@ -510,6 +510,8 @@ impl Ins {
                 self.stats.frames_ignored += 1;
                 None
             }
+            // Start alignments are the navigator's (`nav::policy`), not the running INS's.
+            SensorEvent::Alignment(_) => None,
         }
     }
 

@@ -57,21 +57,20 @@ fn euler_rate_matrix(bank: f64, pitch: f64) -> Matrix3<f64> {
 
 /// Covariance of `[x, y, z, roll, pitch, yaw]` (NED m, rad).
 pub fn pose_covariance(sol: &NavSolution) -> SMatrix<f64, 6, 6> {
-    let ins = &sol.ins;
-    let e = so3::euler_zyx(&ins.q_nb);
+    let e = so3::euler_zyx(&sol.q_nb);
     let jac = euler_rate_matrix(e.z, e.y);
-    let att = jac * ins.cov.attitude_rad2 * jac.transpose();
+    let att = jac * sol.cov.attitude_rad2 * jac.transpose();
     let mut p = SMatrix::<f64, 6, 6>::zeros();
     p.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&ins.cov.position_m2);
+        .copy_from(&sol.cov.position_m2);
     p.fixed_view_mut::<3, 3>(3, 3).copy_from(&att);
     p
 }
 
 /// Horizontal DRMS, vertical σ and speed σ of a solution.
 pub fn accuracies(sol: &NavSolution) -> (f64, f64, f64) {
-    let p = &sol.ins.cov.position_m2;
-    let v = &sol.ins.cov.velocity_m2ps2;
+    let p = &sol.cov.position_m2;
+    let v = &sol.cov.velocity_m2ps2;
     let nonneg = |x: f64| {
         if x.is_finite() {
             x.max(0.0)
@@ -98,15 +97,15 @@ pub fn quality(sigma_h_m: f64) -> i8 {
 /// `time_usec` (the daemon's clock).
 pub fn odometry(sol: &NavSolution, proj: &MapProjection, time_usec: u64) -> apm::ODOMETRY_DATA {
     let ins = &sol.ins;
-    let [x, y, z] = proj.project(&ins.pos);
-    let r_bn = ins.q_nb.inverse().to_rotation_matrix();
-    let v_b = r_bn * ins.v_ned_mps;
+    let [x, y, z] = proj.project(&sol.pos);
+    let r_bn = sol.q_nb.inverse().to_rotation_matrix();
+    let v_b = r_bn * sol.v_ned_mps;
     let mut vel = SMatrix::<f64, 6, 6>::zeros();
     vel.fixed_view_mut::<3, 3>(0, 0)
-        .copy_from(&(r_bn.matrix() * ins.cov.velocity_m2ps2 * r_bn.matrix().transpose()));
+        .copy_from(&(r_bn.matrix() * sol.cov.velocity_m2ps2 * r_bn.matrix().transpose()));
     vel.fixed_view_mut::<3, 3>(3, 3)
         .copy_from(&ins.cov.w_nb_b_rad2ps2);
-    let q = ins.q_nb.quaternion();
+    let q = sol.q_nb.quaternion();
     let (sigma_h, _, _) = accuracies(sol);
     apm::ODOMETRY_DATA {
         time_usec,
@@ -136,8 +135,8 @@ pub fn vision_position_estimate(
     proj: &MapProjection,
     usec: u64,
 ) -> apm::VISION_POSITION_ESTIMATE_DATA {
-    let [x, y, z] = proj.project(&sol.ins.pos);
-    let e = so3::euler_zyx(&sol.ins.q_nb);
+    let [x, y, z] = proj.project(&sol.pos);
+    let e = so3::euler_zyx(&sol.q_nb);
     apm::VISION_POSITION_ESTIMATE_DATA {
         usec,
         x: x as f32,
@@ -184,7 +183,6 @@ pub fn gps_input(
     time_usec: u64,
     unix_us: u64,
 ) -> apm::GPS_INPUT_DATA {
-    let ins = &sol.ins;
     let (week, week_ms) = gps_week(unix_us, s.leap_s);
     let (h_acc, v_acc, s_acc) = accuracies(sol);
     let dop = |acc: f64| (acc / UERE_M).clamp(0.01, 99.0) as f32;
@@ -196,14 +194,14 @@ pub fn gps_input(
         time_week_ms: week_ms,
         time_week: week,
         fix_type: apm::GpsFixType::GPS_FIX_TYPE_3D_FIX,
-        lat: deg_e7(ins.pos.lat_rad),
-        lon: deg_e7(ins.pos.lon_rad),
-        alt: (ins.pos.h_m - s.undulation_m) as f32,
+        lat: deg_e7(sol.pos.lat_rad),
+        lon: deg_e7(sol.pos.lon_rad),
+        alt: (sol.pos.h_m - s.undulation_m) as f32,
         hdop: dop(h_acc),
         vdop: dop(v_acc),
-        vn: ins.v_ned_mps.x as f32,
-        ve: ins.v_ned_mps.y as f32,
-        vd: ins.v_ned_mps.z as f32,
+        vn: sol.v_ned_mps.x as f32,
+        ve: sol.v_ned_mps.y as f32,
+        vd: sol.v_ned_mps.z as f32,
         speed_accuracy: s_acc as f32,
         horiz_accuracy: h_acc as f32,
         vert_accuracy: v_acc as f32,
@@ -306,7 +304,6 @@ pub fn set_message_interval(
 pub(crate) mod tests {
     use super::*;
     use crate::ins::{InsCovariance, InsSolution};
-    use crate::nav::VisionStatus;
     use nalgebra::{UnitQuaternion, Vector3};
 
     pub(crate) fn solution() -> NavSolution {
@@ -316,8 +313,8 @@ pub(crate) mod tests {
             h_m: 500.0,
         };
         let z3 = Matrix3::zeros();
-        NavSolution {
-            ins: InsSolution {
+        NavSolution::from_ins(
+            InsSolution {
                 t_us: 1_000_000,
                 dt_s: 0.01,
                 imu_gap: false,
@@ -355,9 +352,8 @@ pub(crate) mod tests {
                     delta_p_pa2: 0.0,
                 },
             },
-            vision: VisionStatus::Inactive,
-            reset_counter: 3,
-        }
+            3,
+        )
     }
 
     #[test]
@@ -413,7 +409,7 @@ pub(crate) mod tests {
     fn banked_attitude_maps_through_the_euler_jacobian() {
         // At bank 90°, a body-y (pitch) rotation error is a yaw error in Euler angles.
         let mut sol = solution();
-        sol.ins.q_nb = UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
+        sol.q_nb = UnitQuaternion::from_euler_angles(std::f64::consts::FRAC_PI_2, 0.0, 0.0);
         let p = pose_covariance(&sol);
         assert!((p[(4, 4)] - 9e-4).abs() < 1e-9, "pitch gets body-z");
         assert!((p[(5, 5)] - 4e-4).abs() < 1e-9, "yaw gets body-y");

@@ -12,7 +12,13 @@
 //!   - 4 GNSS: lat (rad), lon (rad), h (m), v N E D (m/s), σ horizontal, σ vertical (m),
 //!     σ velocity (m/s);
 //!   - 5 frame: `u32` width, `u32` height, then width·height grey bytes;
-//!   - 6 reference attitude: unit quaternion body → NED, w i j k.
+//!   - 6 reference attitude: unit quaternion body → NED, w i j k;
+//!   - 7 start alignment: unit quaternion body → NED (w i j k), AoA (rad), then the sensor-error
+//!     priors `E_gyr` and its σ (rad/s), `E_acc` and σ (m/s²), `E_mag` and σ (nT), `ΔB_n` and
+//!     σ (nT), three values each;
+//!   - 8 navigation configuration: `t_us` 0, then the navigator's settings (`nav::NavConfig`) as
+//!     UTF-8 TOML. Written once, right after the header, by the simulator and by `ianav run
+//!     --record`, so that `ianav replay` runs a log with the settings it was flown with.
 //!
 //! Readers skip record kinds they do not know (the length says how far), so the format can
 //! grow without breaking old readers.
@@ -23,7 +29,10 @@ use std::sync::Arc;
 use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use crate::math::wgs84::Geodetic;
-use crate::sensors::{AirSample, Frame, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
+use crate::sensors::{
+    AirSample, Alignment, Frame, GnssFix, ImuSample, MagSample, RefAttitude, SensorErrorPriors,
+    SensorEvent,
+};
 
 /// File magic.
 pub const MAGIC: &[u8; 8] = b"IANAVLOG";
@@ -38,6 +47,8 @@ const KIND_MAG: u8 = 3;
 const KIND_GNSS: u8 = 4;
 const KIND_FRAME: u8 = 5;
 const KIND_REF_ATTITUDE: u8 = 6;
+const KIND_ALIGNMENT: u8 = 7;
+const KIND_NAV_CONFIG: u8 = 8;
 
 /// Errors reading a sensor log.
 #[derive(Debug, thiserror::Error)]
@@ -129,12 +140,40 @@ impl<W: Write> SensorLogWriter<W> {
                 put(&[q.w, q.i, q.j, q.k]);
                 KIND_REF_ATTITUDE
             }
+            SensorEvent::Alignment(a) => {
+                let q = a.q_nb.quaternion();
+                put(&[q.w, q.i, q.j, q.k, a.aoa_rad]);
+                let e = &a.priors;
+                for v in [
+                    &e.e_gyr_rps,
+                    &e.e_gyr_sigma_rps,
+                    &e.e_acc_mps2,
+                    &e.e_acc_sigma_mps2,
+                    &e.e_mag_nt,
+                    &e.e_mag_sigma_nt,
+                    &e.delta_b_n_nt,
+                    &e.delta_b_n_sigma_nt,
+                ] {
+                    put(v.as_slice());
+                }
+                KIND_ALIGNMENT
+            }
         };
         let len = u32::try_from(self.payload.len())
             .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "record too large"))?;
         self.out.write_all(&[kind])?;
         self.out.write_all(&len.to_le_bytes())?;
         self.out.write_all(&self.payload)
+    }
+
+    /// Record the navigator's settings (TOML); call once, before the first event.
+    pub fn write_nav_config(&mut self, toml_text: &str) -> io::Result<()> {
+        let len = u32::try_from(8 + toml_text.len())
+            .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "record too large"))?;
+        self.out.write_all(&[KIND_NAV_CONFIG])?;
+        self.out.write_all(&len.to_le_bytes())?;
+        self.out.write_all(&0_u64.to_le_bytes())?;
+        self.out.write_all(toml_text.as_bytes())
     }
 
     /// Flush and return the inner writer.
@@ -150,6 +189,9 @@ pub struct SensorLogReader<R: Read> {
     input: R,
     payload: Vec<u8>,
     failed: bool,
+    nav_config: Option<String>,
+    /// The first item, read while looking for the configuration record.
+    first: Option<Result<SensorEvent, SensorLogError>>,
 }
 
 impl<R: Read> SensorLogReader<R> {
@@ -161,11 +203,20 @@ impl<R: Read> SensorLogReader<R> {
         if &header[..8] != MAGIC || version != VERSION {
             return Err(SensorLogError::BadHeader(version));
         }
-        Ok(Self {
+        let mut reader = Self {
             input,
             payload: Vec::new(),
             failed: false,
-        })
+            nav_config: None,
+            first: None,
+        };
+        reader.first = reader.next_record().transpose();
+        Ok(reader)
+    }
+
+    /// The navigator's settings recorded in the log (TOML), if it has them.
+    pub fn nav_config(&self) -> Option<&str> {
+        self.nav_config.as_deref()
     }
 
     fn next_record(&mut self) -> Result<Option<SensorEvent>, SensorLogError> {
@@ -184,10 +235,16 @@ impl<R: Read> SensorLogReader<R> {
             }
             self.payload.resize(len as usize, 0);
             self.input.read_exact(&mut self.payload)?;
+            if kind == KIND_NAV_CONFIG {
+                let text = std::str::from_utf8(&self.payload[8..])
+                    .map_err(|_| SensorLogError::BadRecord { kind, len })?;
+                self.nav_config = Some(text.to_owned());
+                continue;
+            }
             if let Some(event) = decode(kind, &self.payload) {
                 return Ok(Some(event));
             }
-            if (KIND_IMU..=KIND_REF_ATTITUDE).contains(&kind) {
+            if (KIND_IMU..=KIND_ALIGNMENT).contains(&kind) {
                 return Err(SensorLogError::BadRecord { kind, len });
             }
             // Unknown kind from a newer writer: skip it.
@@ -201,6 +258,10 @@ impl<R: Read> Iterator for SensorLogReader<R> {
     fn next(&mut self) -> Option<Self::Item> {
         if self.failed {
             return None;
+        }
+        if let Some(first) = self.first.take() {
+            self.failed = first.is_err();
+            return Some(first);
         }
         let item = self.next_record().transpose();
         if matches!(item, Some(Err(_))) {
@@ -224,6 +285,11 @@ impl Cursor<'_> {
     }
     fn vec3(&mut self) -> Option<Vector3<f64>> {
         Some(Vector3::new(self.f64()?, self.f64()?, self.f64()?))
+    }
+    /// A stored unit quaternion, kept bit for bit; anything else is a corrupt record.
+    fn unit_quaternion(&mut self) -> Option<UnitQuaternion<f64>> {
+        let q = Quaternion::new(self.f64()?, self.f64()?, self.f64()?, self.f64()?);
+        ((q.norm() - 1.0).abs() <= 1e-9).then(|| UnitQuaternion::new_unchecked(q))
     }
 }
 
@@ -280,16 +346,29 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
                 pixels: Arc::from(c.0),
             })
         }
-        KIND_REF_ATTITUDE => {
-            let q = Quaternion::new(c.f64()?, c.f64()?, c.f64()?, c.f64()?);
-            // Stored unit: kept bit for bit; anything else is a corrupt record.
-            if (q.norm() - 1.0).abs() > 1e-9 {
-                return None;
-            }
-            SensorEvent::RefAttitude(RefAttitude {
+        KIND_REF_ATTITUDE => SensorEvent::RefAttitude(RefAttitude {
+            t_us,
+            q_nb: c.unit_quaternion()?,
+        }),
+        KIND_ALIGNMENT => {
+            let q_nb = c.unit_quaternion()?;
+            let aoa_rad = c.f64()?;
+            let priors = SensorErrorPriors {
+                e_gyr_rps: c.vec3()?,
+                e_gyr_sigma_rps: c.vec3()?,
+                e_acc_mps2: c.vec3()?,
+                e_acc_sigma_mps2: c.vec3()?,
+                e_mag_nt: c.vec3()?,
+                e_mag_sigma_nt: c.vec3()?,
+                delta_b_n_nt: c.vec3()?,
+                delta_b_n_sigma_nt: c.vec3()?,
+            };
+            SensorEvent::Alignment(Box::new(Alignment {
                 t_us,
-                q_nb: UnitQuaternion::new_unchecked(q),
-            })
+                q_nb,
+                aoa_rad,
+                priors,
+            }))
         }
         _ => return None,
     };
@@ -341,6 +420,21 @@ mod tests {
                 t_us: 100_500,
                 q_nb: UnitQuaternion::from_euler_angles(0.1, -0.05, 2.9),
             }),
+            SensorEvent::Alignment(Box::new(Alignment {
+                t_us: 1_000_000,
+                q_nb: UnitQuaternion::from_euler_angles(-0.02, 0.04, 1.3),
+                aoa_rad: 0.06,
+                priors: SensorErrorPriors {
+                    e_gyr_rps: Vector3::new(1e-4, -2e-4, 3e-5),
+                    e_gyr_sigma_rps: Vector3::repeat(1e-6),
+                    e_acc_mps2: Vector3::new(0.01, -0.02, 0.03),
+                    e_acc_sigma_mps2: Vector3::repeat(1e-4),
+                    e_mag_nt: Vector3::new(100.0, -50.0, 25.0),
+                    e_mag_sigma_nt: Vector3::repeat(1.0),
+                    delta_b_n_nt: Vector3::new(-80.0, 40.0, 120.0),
+                    delta_b_n_sigma_nt: Vector3::repeat(10.0),
+                },
+            })),
         ]
     }
 
@@ -357,6 +451,23 @@ mod tests {
             .collect::<Result<_, _>>()
             .unwrap();
         assert_eq!(back, events);
+        // With the navigator's settings recorded first, and without.
+        let mut w = SensorLogWriter::new(Vec::new()).unwrap();
+        w.write_nav_config("[start]\nmag_decimal_year = 2026.5\n")
+            .unwrap();
+        for e in &events {
+            w.write(e).unwrap();
+        }
+        let bytes = w.finish().unwrap();
+        let mut r = SensorLogReader::new(&bytes[..]).unwrap();
+        assert_eq!(r.nav_config(), Some("[start]\nmag_decimal_year = 2026.5\n"));
+        assert_eq!(r.by_ref().collect::<Result<Vec<_>, _>>().unwrap(), events);
+        assert_eq!(
+            SensorLogReader::new(&b"IANAVLOG\x01\x00\x00\x00"[..])
+                .unwrap()
+                .nav_config(),
+            None
+        );
     }
 
     #[test]

@@ -468,7 +468,7 @@ impl Vehicle {
                     self.frames.push(f);
                 }
                 // The flight's sensors make none; the vehicle reports its own estimate.
-                SensorEvent::RefAttitude(_) => {}
+                SensorEvent::RefAttitude(_) | SensorEvent::Alignment(_) => {}
             }
         }
         self.collector.events = events;
@@ -694,8 +694,8 @@ impl Vehicle {
         let est = self.flight.estimate();
         let temp_k = self
             .flight
-            .ins_solution()
-            .map_or_else(|| atm::isa_temperature_k(est.hp_m), |s| s.temp_k);
+            .nav_solution()
+            .map_or_else(|| atm::isa_temperature_k(est.hp_m), |s| s.ins.temp_k);
         let rho = atm::density_kgpm3(atm::pressure_pa(est.hp_m), temp_k);
         let rho0 = atm::density_kgpm3(atm::P0_PA, atm::T0_K);
         est.tas_mps * (rho / rho0).sqrt()
@@ -704,8 +704,8 @@ impl Vehicle {
     /// The wind the vehicle's navigation estimates (its INS), or the truth's under truth
     /// navigation.
     pub fn nav_wind_ned_mps(&self) -> Vector3<f64> {
-        match self.flight.ins_solution() {
-            Some(sol) => sol.wind_ned_mps,
+        match self.flight.nav_solution() {
+            Some(sol) => sol.ins.wind_ned_mps,
             None => self.flight.truth_sample().wind_ned_mps,
         }
     }

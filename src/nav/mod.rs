@@ -1,34 +1,57 @@
 //! The navigation core seen by its drivers (ARCHITECTURE "The navigation core"; paper, "IA-VNS
-//! flow diagram"): one synchronous object fed timestamped [`SensorEvent`]s that returns
-//! solutions. For now it wraps the GNSS-denied INS and passes camera frames through (counted)
-//! until the visual navigation lands; the daemon, the simulator and the Monte Carlo all drive
-//! this same type.
-//!
-//! Unlike the simulator, which knows the truth, a daemon must start the INS from what the
-//! vehicle tells it (first GNSS fix, the autopilot's attitude): [`Navigator::initialise`]
-//! takes that [`InsInit`]; events pushed before it are counted and dropped.
+//! flow diagram"): one synchronous object fed timestamped [`SensorEvent`]s that returns fused
+//! [`NavSolution`]s. The simulator, the Monte Carlo, the SITL vehicle, the daemon and a replay
+//! all drive this type and nothing else of the core: it owns the INS, decides when to start
+//! and re-initialise it ([`policy`]), and (to come) the visual navigation, whose frames it
+//! already receives and counts.
+
+pub mod policy;
+pub mod replay;
+pub mod solution;
+
+pub use policy::{StartKind, StartPolicy, StartRecord};
+pub use solution::{InsStatus, NavCovariance, NavSolution, PositionSource, VisionStatus};
 
 use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
 use crate::sensors::SensorEvent;
+use crate::vision::camera::{CameraConfig, Mounting};
+use policy::{Running, StartState};
 
-/// What the visual navigation contributes to a solution.
-#[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum VisionStatus {
-    /// No visual navigation yet (the INS alone; frames are counted and dropped).
-    Inactive,
+/// The camera as the navigation knows it: intrinsics and the *estimated* mounting (the true
+/// one is the vehicle's, or the simulator's).
+#[derive(Debug, Clone, PartialEq)]
+pub struct NavCamera {
+    /// Intrinsics.
+    pub intrinsics: CameraConfig,
+    /// Estimated mounting body → camera.
+    pub mounting: Mounting,
 }
 
-/// One fused solution.
-#[derive(Debug, Clone, Copy, PartialEq)]
-pub struct NavSolution {
-    /// The INS solution (position, velocity, attitude and their covariances).
-    pub ins: InsSolution,
-    /// State of the visual navigation.
-    pub vision: VisionStatus,
-    /// Incremented at every (re)initialisation: consumers must not difference positions
-    /// across a change (MAVLink `reset_counter`).
-    pub reset_counter: u8,
+/// Settings of the navigation core (recorded in sensor logs as TOML, `io::sensor_log`).
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct NavConfig {
+    /// The INS.
+    pub ins: InsConfig,
+    /// When to start and re-initialise the INS.
+    pub start: StartPolicy,
+    /// The down-looking camera, if one is fitted (not recorded yet: nothing in the core uses
+    /// it before the visual navigation).
+    #[serde(skip)]
+    pub camera: Option<NavCamera>,
+}
+
+impl NavConfig {
+    /// The INS `ins` started by the default rules with the magnetic model of
+    /// `mag_decimal_year`, without a camera.
+    pub fn new(ins: InsConfig, mag_decimal_year: f64) -> Self {
+        Self {
+            ins,
+            start: StartPolicy::new(mag_decimal_year),
+            camera: None,
+        }
+    }
 }
 
 /// Counters of the navigator (the INS keeps its own, see [`Navigator::ins_stats`]).
@@ -40,6 +63,10 @@ pub struct NavigatorStats {
     pub frames: u64,
     /// (Re)initialisations.
     pub initialisations: u64,
+    /// Starts the INS refused (an invalid initial state).
+    pub starts_refused: u64,
+    /// Fixes that could have started the INS but came without an attitude at their time.
+    pub start_fixes_without_attitude: u64,
     /// Times the IMU was found noisier than configured, or [`IMU_NOISE_ESCALATION`] times
     /// noisier than at the last report (see [`Navigator::imu_noise`]).
     pub imu_noisier_than_configured: u64,
@@ -48,8 +75,15 @@ pub struct NavigatorStats {
 /// The navigation core.
 #[derive(Debug, Clone)]
 pub struct Navigator {
-    cfg: InsConfig,
+    cfg: NavConfig,
     ins: Option<Ins>,
+    /// The INS's latest solution (the GNSS-return re-initialisation starts from it).
+    last: Option<InsSolution>,
+    start: StartState,
+    last_start: Option<StartRecord>,
+    /// Aiding samples since the latest IMU sample: a new INS takes them, so that a start
+    /// fuses what was measured at its first step.
+    since_imu: Vec<SensorEvent>,
     stats: NavigatorStats,
     reset_counter: u8,
     imu_noise: ImuNoiseMonitor,
@@ -62,12 +96,16 @@ pub struct Navigator {
 pub const IMU_NOISE_ESCALATION: f64 = 2.0;
 
 impl Navigator {
-    /// A navigator waiting for [`Navigator::initialise`]. Fails on an invalid configuration.
-    pub fn new(cfg: &InsConfig) -> Result<Self, InsError> {
-        cfg.validate()?;
+    /// A navigator waiting for its first start. Fails on an invalid configuration.
+    pub fn new(cfg: &NavConfig) -> Result<Self, InsError> {
+        cfg.ins.validate()?;
         Ok(Self {
             cfg: cfg.clone(),
             ins: None,
+            last: None,
+            start: StartState::default(),
+            last_start: None,
+            since_imu: Vec::with_capacity(4),
             stats: NavigatorStats::default(),
             reset_counter: 0,
             imu_noise: ImuNoiseMonitor::default(),
@@ -76,20 +114,28 @@ impl Navigator {
         })
     }
 
-    /// (Re)start the INS from `init`. A failed initialisation leaves the previous state.
+    /// (Re)start the INS from `init` now, outside the start rules (tests and tools; drivers
+    /// feed events and let [`policy`] decide). A failed initialisation leaves the previous
+    /// state.
     pub fn initialise(&mut self, init: &InsInit) -> Result<(), InsError> {
-        let ins = Ins::new(&self.cfg, init)?;
+        let ins = Ins::new(&self.cfg.ins, init)?;
         if self.ins.is_some() {
             self.reset_counter = self.reset_counter.wrapping_add(1);
         }
         self.ins = Some(ins);
+        self.last = None;
         self.stats.initialisations += 1;
         Ok(())
     }
 
-    /// Whether [`Navigator::initialise`] has succeeded.
+    /// Whether the INS has been started.
     pub fn is_initialised(&self) -> bool {
         self.ins.is_some()
+    }
+
+    /// The latest (re)start made by the rules.
+    pub fn last_start(&self) -> Option<&StartRecord> {
+        self.last_start.as_ref()
     }
 
     /// Whether the INS is in GNSS-denied mode.
@@ -109,20 +155,47 @@ impl Navigator {
             SensorEvent::Imu(s) => self.check_imu_noise(s),
             _ => {}
         }
+        let running = self.ins.as_ref().map(|ins| Running {
+            gnss_denied: ins.gnss_denied(),
+            last: self.last.as_ref(),
+        });
+        let start = self.start.observe(&self.cfg.start, event, running);
+        self.stats.start_fixes_without_attitude = self.start.fixes_without_attitude;
+        if let Some((record, init)) = start {
+            self.start_at(record, &init);
+        }
+        match event {
+            SensorEvent::Alignment(_) => return None,
+            SensorEvent::Air(_) | SensorEvent::Mag(_) | SensorEvent::RefAttitude(_) => {
+                self.since_imu.push(event.clone());
+            }
+            SensorEvent::Imu(_) => self.since_imu.clear(),
+            SensorEvent::Gnss(_) | SensorEvent::Frame(_) => {}
+        }
         let Some(ins) = self.ins.as_mut() else {
             self.stats.events_before_init += 1;
             return None;
         };
-        ins.push(event).map(|ins| NavSolution {
-            ins,
-            vision: VisionStatus::Inactive,
-            reset_counter: self.reset_counter,
-        })
+        let sol = ins.push(event)?;
+        self.last = Some(sol);
+        Some(NavSolution::from_ins(sol, self.reset_counter))
     }
 
+    fn start_at(&mut self, record: StartRecord, init: &InsInit) {
+        if self.initialise(init).is_err() {
+            self.stats.starts_refused += 1;
+            return;
+        }
+        self.last_start = Some(record);
+        if let Some(ins) = self.ins.as_mut() {
+            for event in &self.since_imu {
+                ins.push(event);
+            }
+        }
+    }
     /// The IMU's measured white noise against the configuration (`None` until ~5 s of IMU).
     pub fn imu_noise(&self) -> Option<ImuNoise> {
-        self.imu_noise.noise(&self.cfg)
+        self.imu_noise.noise(&self.cfg.ins)
     }
 
     /// Whether the IMU is currently noisier than configured (ratio over
@@ -150,8 +223,8 @@ impl Navigator {
         }
     }
 
-    /// The INS configuration.
-    pub fn config(&self) -> &InsConfig {
+    /// The configuration.
+    pub fn config(&self) -> &NavConfig {
         &self.cfg
     }
 
@@ -208,7 +281,7 @@ mod tests {
 
     #[test]
     fn events_before_the_initialisation_are_counted_and_resets_are_numbered() {
-        let mut nav = Navigator::new(&InsConfig::default()).unwrap();
+        let mut nav = Navigator::new(&NavConfig::new(InsConfig::default(), 2026.5)).unwrap();
         assert!(nav.push(&imu(0)).is_none());
         assert_eq!(nav.stats().events_before_init, 1);
         nav.initialise(&init()).unwrap();
@@ -226,9 +299,41 @@ mod tests {
         assert_eq!(nav.stats().initialisations, 2);
     }
 
+    /// The rules start the INS at the fix; the air sample of the same instant, received before
+    /// the fix, reaches the new INS, so the IMU sample of that instant already steps it.
+    #[test]
+    fn a_start_fuses_the_aiding_samples_of_its_instant() {
+        let mut nav = Navigator::new(&NavConfig::new(InsConfig::default(), 2026.5)).unwrap();
+        for k in 0..100 {
+            assert!(nav.push(&imu(k * 10_000)).is_none());
+        }
+        let t_us = 1_000_000;
+        let i = init();
+        nav.push(&air(t_us));
+        nav.push(&SensorEvent::RefAttitude(crate::sensors::RefAttitude {
+            t_us,
+            q_nb: i.q_nb,
+        }));
+        assert!(!nav.is_initialised());
+        nav.push(&SensorEvent::Gnss(crate::sensors::GnssFix {
+            t_us,
+            pos: i.pos,
+            v_ned_mps: i.v_ned_mps,
+            sigma_hor_m: 2.0,
+            sigma_ver_m: 4.0,
+            sigma_vel_mps: 0.1,
+        }));
+        assert_eq!(nav.last_start().map(|s| s.kind), Some(StartKind::First));
+        let sol = nav.push(&imu(t_us)).expect("stepped at the fix's instant");
+        assert_eq!((sol.t_us, sol.reset_counter), (t_us, 0));
+        let ins = nav.ins_stats().unwrap();
+        assert_eq!((ins.air.accepted, ins.gnss.accepted), (1, 1));
+        assert_eq!(nav.stats().events_before_init, 102);
+    }
+
     #[test]
     fn a_bad_initialisation_keeps_the_running_ins() {
-        let mut nav = Navigator::new(&InsConfig::default()).unwrap();
+        let mut nav = Navigator::new(&NavConfig::new(InsConfig::default(), 2026.5)).unwrap();
         nav.initialise(&init()).unwrap();
         let mut bad = init();
         bad.pos.h_m = f64::NAN;
@@ -242,7 +347,7 @@ mod tests {
     #[test]
     fn a_noisy_imu_is_reported_and_reported_again_when_it_gets_worse() {
         let cfg = InsConfig::default();
-        let mut nav = Navigator::new(&cfg).unwrap();
+        let mut nav = Navigator::new(&NavConfig::new(cfg.clone(), 2026.5)).unwrap();
         // Deterministic ±σ noise (white enough for second differences: a pseudo-random sign).
         let mut state = 0x2545_f491_4f6c_dd1d_u64;
         let mut sign = move || {

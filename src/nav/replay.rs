@@ -1,0 +1,181 @@
+//! Replay of a sensor log through the navigator (ARCHITECTURE "The navigation core": a replay
+//! is one more driver): every event of an `io::sensor_log` file, in order, into a
+//! [`Navigator`] built with the settings the log was recorded with; the solutions come out as
+//! CSV whose numbers read back bit for bit (shortest round-trip decimal form). The same log
+//! and settings give the same solutions as the flight that recorded them, which makes a
+//! committed log and its output a regression test of the whole core.
+
+use std::fmt::Write as _;
+use std::io::{Read, Write};
+
+use super::{NavConfig, NavSolution, Navigator, NavigatorStats};
+use crate::ins::{InsError, InsStats};
+use crate::io::sensor_log::{SensorLogError, SensorLogReader};
+
+/// Columns of the solutions CSV: time, geodetic position (rad, m), NED velocity, attitude
+/// quaternion body → NED, position σ north / east / down, GNSS-denied flag, reset counter.
+pub const CSV_HEADER: &str = "t_us,lat_rad,lon_rad,h_m,v_n_mps,v_e_mps,v_d_mps,q_w,q_x,q_y,q_z,\
+                              sigma_n_m,sigma_e_m,sigma_d_m,gnss_denied,reset_counter";
+
+/// Errors of a replay.
+#[derive(Debug, thiserror::Error)]
+pub enum ReplayError {
+    /// The log could not be read.
+    #[error(transparent)]
+    Log(#[from] SensorLogError),
+    /// The log records no navigation settings.
+    #[error("the log records no navigation settings (written by an older version?)")]
+    NoConfig,
+    /// The recorded settings do not parse.
+    #[error("navigation settings in the log: {0}")]
+    Config(String),
+    /// The settings are invalid.
+    #[error(transparent)]
+    Ins(#[from] InsError),
+    /// Writing the output failed.
+    #[error("writing the solutions: {0}")]
+    Io(#[from] std::io::Error),
+}
+
+/// What a replay went through.
+#[derive(Debug, Clone, Default)]
+pub struct ReplaySummary {
+    /// Events read from the log.
+    pub events: u64,
+    /// Solutions the navigator produced.
+    pub solutions: u64,
+    /// Solutions written out.
+    pub written: u64,
+    /// The navigator's counters at the end.
+    pub nav: NavigatorStats,
+    /// The INS counters at the end (`None` if it never started).
+    pub ins: Option<InsStats>,
+    /// The last solution.
+    pub last: Option<NavSolution>,
+}
+
+/// The settings as they are recorded in a log.
+pub fn config_to_toml(cfg: &NavConfig) -> String {
+    // Every field of the settings has a TOML form: this cannot fail.
+    toml::to_string(cfg).unwrap_or_default()
+}
+
+/// The settings recorded in `reader`'s log.
+pub fn config_of<R: Read>(reader: &SensorLogReader<R>) -> Result<NavConfig, ReplayError> {
+    let text = reader.nav_config().ok_or(ReplayError::NoConfig)?;
+    toml::from_str(text).map_err(|e| ReplayError::Config(e.to_string()))
+}
+
+/// Run every event of `reader` through a navigator built with `cfg`, handing each solution
+/// to `on_solution`.
+pub fn replay<R: Read>(
+    reader: SensorLogReader<R>,
+    cfg: &NavConfig,
+    mut on_solution: impl FnMut(&NavSolution) -> Result<(), ReplayError>,
+) -> Result<ReplaySummary, ReplayError> {
+    let mut nav = Navigator::new(cfg)?;
+    let mut summary = ReplaySummary::default();
+    for event in reader {
+        let event = event?;
+        summary.events += 1;
+        if let Some(sol) = nav.push(&event) {
+            summary.solutions += 1;
+            on_solution(&sol)?;
+            summary.last = Some(sol);
+        }
+    }
+    summary.nav = *nav.stats();
+    summary.ins = nav.ins_stats().copied();
+    Ok(summary)
+}
+
+/// Replay `reader` with the settings it records, writing every `every`-th solution (the first
+/// included) as CSV to `out`.
+pub fn replay_to_csv<R: Read>(
+    reader: SensorLogReader<R>,
+    every: u64,
+    out: &mut impl Write,
+) -> Result<ReplaySummary, ReplayError> {
+    let cfg = config_of(&reader)?;
+    writeln!(out, "{CSV_HEADER}")?;
+    let every = every.max(1);
+    let (mut k, mut written, mut line) = (0_u64, 0_u64, String::with_capacity(320));
+    let mut summary = replay(reader, &cfg, |sol| {
+        if k.is_multiple_of(every) {
+            csv_line(sol, &mut line);
+            writeln!(out, "{line}")?;
+            written += 1;
+        }
+        k += 1;
+        Ok(())
+    })?;
+    summary.written = written;
+    Ok(summary)
+}
+
+/// One CSV line (no newline) of `sol` into `line`.
+pub fn csv_line(sol: &NavSolution, line: &mut String) {
+    line.clear();
+    let q = sol.q_nb.quaternion();
+    let p = &sol.cov.position_m2;
+    let sd = |i: usize| p[(i, i)].max(0.0).sqrt();
+    // `{}` of an f64 is its shortest decimal form that parses back to the same bits.
+    let _ = write!(
+        line,
+        "{},{},{},{},{},{},{},{},{},{},{},{},{},{},{},{}",
+        sol.t_us,
+        sol.pos.lat_rad,
+        sol.pos.lon_rad,
+        sol.pos.h_m,
+        sol.v_ned_mps.x,
+        sol.v_ned_mps.y,
+        sol.v_ned_mps.z,
+        q.w,
+        q.i,
+        q.j,
+        q.k,
+        sd(0),
+        sd(1),
+        sd(2),
+        u8::from(sol.ins_status.gnss_denied),
+        sol.reset_counter
+    );
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ins::InsConfig;
+
+    #[test]
+    fn the_settings_round_trip_through_their_toml_form() {
+        let mut cfg = NavConfig::new(InsConfig::default(), 2025.75);
+        cfg.start.restart_airspeed_mps = Some(12.5);
+        let back: NavConfig = toml::from_str(&config_to_toml(&cfg)).unwrap();
+        assert_eq!(back, cfg);
+        let cfg = NavConfig::new(InsConfig::default(), 2025.75);
+        let back: NavConfig = toml::from_str(&config_to_toml(&cfg)).unwrap();
+        assert_eq!(back, cfg);
+    }
+
+    #[test]
+    fn a_log_without_settings_is_refused_and_a_broken_one_is_an_error() {
+        let log = crate::io::sensor_log::SensorLogWriter::new(Vec::new())
+            .unwrap()
+            .finish()
+            .unwrap();
+        let r = SensorLogReader::new(&log[..]).unwrap();
+        assert!(matches!(
+            replay_to_csv(r, 1, &mut Vec::new()),
+            Err(ReplayError::NoConfig)
+        ));
+        let mut w = crate::io::sensor_log::SensorLogWriter::new(Vec::new()).unwrap();
+        w.write_nav_config("[ins]\nno_such_key = 1\n").unwrap();
+        let log = w.finish().unwrap();
+        let r = SensorLogReader::new(&log[..]).unwrap();
+        assert!(matches!(
+            replay_to_csv(r, 1, &mut Vec::new()),
+            Err(ReplayError::Config(_))
+        ));
+    }
+}
