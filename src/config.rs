@@ -508,6 +508,9 @@ pub struct DaemonConfig {
     pub logging: LoggingConfig,
     /// The decoded signing key.
     pub signing_key: Option<[u8; 32]>,
+    /// Sensor log to record every event the navigator is fed into (`ianav run --record`; not
+    /// a configuration key).
+    pub record: Option<std::path::PathBuf>,
 }
 
 /// Overwrite `base`'s keys with `over`'s, table by table.
@@ -588,6 +591,7 @@ impl DaemonConfig {
             ins,
             logging: raw.logging,
             signing_key,
+            record: None,
         };
         cfg.validate()?;
         Ok(cfg)

@@ -36,6 +36,11 @@ enum Command {
         /// Configuration file (see config/ianav.toml).
         #[arg(long, short, value_name = "FILE")]
         config: PathBuf,
+        /// Record every sensor event fed to the navigation core, camera frames inline, and
+        /// the navigation settings into this sensor log (`ianav replay` runs it; format in
+        /// docs/REPLAY.md). Overwritten if it exists.
+        #[arg(long, value_name = "FILE")]
+        record: Option<PathBuf>,
     },
     /// Validate a configuration file with every check `run` makes before it opens the link
     /// (keys, ranges, files, log filter, connection address resolved): prints "OK", or the
@@ -44,6 +49,21 @@ enum Command {
         /// Configuration file to check.
         #[arg(value_name = "FILE")]
         file: PathBuf,
+    },
+    /// Run a sensor log (the simulator's `sensors.bin`, or a daemon's recording) through the
+    /// navigation core with the settings recorded in it, and write the solutions to
+    /// `OUT/solutions.csv` (numbers in their shortest exact decimal form: the same log gives
+    /// the same file, bit for bit).
+    Replay {
+        /// Sensor log.
+        #[arg(value_name = "FILE")]
+        log: PathBuf,
+        /// Output directory (created).
+        #[arg(long, value_name = "DIR")]
+        out: PathBuf,
+        /// Write every N-th solution (the first included); 1 = every IMU step.
+        #[arg(long, default_value_t = 1, value_name = "N")]
+        every: u64,
     },
     /// Print the version and exit.
     Version,
@@ -71,8 +91,10 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             println!("OK");
             Ok(())
         }
-        Some(Command::Run { config }) => {
-            let p = preflight(&config).map_err(|e| in_file(&config, e))?;
+        Some(Command::Replay { log, out, every }) => replay(&log, &out, every),
+        Some(Command::Run { config, record }) => {
+            let mut p = preflight(&config).map_err(|e| in_file(&config, e))?;
+            p.config.record = record;
             tracing_subscriber::fmt()
                 .with_env_filter(p.log_filter)
                 .with_writer(std::io::stderr)
@@ -89,6 +111,40 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             result
         }
     }
+}
+
+/// `ianav replay`: the log through the navigator, the solutions to `out/solutions.csv`.
+fn replay(log: &Path, out: &Path, every: u64) -> anyhow::Result<()> {
+    use std::io::{BufReader, BufWriter, Write};
+    let file = std::fs::File::open(log).with_context(|| log.display().to_string())?;
+    let reader = ianav::io::sensor_log::SensorLogReader::new(BufReader::new(file))
+        .with_context(|| log.display().to_string())?;
+    std::fs::create_dir_all(out).with_context(|| out.display().to_string())?;
+    let path = out.join("solutions.csv");
+    let mut csv =
+        BufWriter::new(std::fs::File::create(&path).with_context(|| path.display().to_string())?);
+    let s = ianav::nav::replay::replay_to_csv(reader, every, &mut csv)
+        .with_context(|| log.display().to_string())?;
+    csv.flush().with_context(|| path.display().to_string())?;
+    println!(
+        "{} events, {} solutions ({} written to {}), {} starts",
+        s.events,
+        s.solutions,
+        s.written,
+        path.display(),
+        s.nav.initialisations
+    );
+    if let Some(last) = s.last {
+        println!(
+            "last solution at {} µs: lat {:.7}°, lon {:.7}°, h {:.1} m, GNSS-denied {}",
+            last.t_us,
+            last.pos.lat_rad.to_degrees(),
+            last.pos.lon_rad.to_degrees(),
+            last.pos.h_m,
+            last.ins_status.gnss_denied
+        );
+    }
+    Ok(())
 }
 
 /// A configuration error prefixed with its file, unless it already names it.

@@ -465,6 +465,9 @@ fn run(
     let setup = setup(&fly.setup)?;
     let mut flight = Flight::new(&setup, fly.seed)?;
     let mut writer = RunWriter::new(out, !no_sensor_log)?;
+    if let Some(nav) = flight.navigator() {
+        writer.record_nav_config(nav.config())?;
+    }
     if let Some(dir) = frames {
         std::fs::create_dir_all(dir).with_context(|| format!("creating {}", dir.display()))?;
     }

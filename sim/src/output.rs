@@ -122,6 +122,19 @@ fn create(path: &Path) -> Result<BufWriter<File>, OutputError> {
 }
 
 impl RunWriter {
+    /// Record the navigator's settings at the head of the sensor log, so that `ianav replay`
+    /// runs it as flown. Call before the first event.
+    pub fn record_nav_config(&mut self, cfg: &ianav::nav::NavConfig) -> Result<(), OutputError> {
+        let Some(w) = self.sensors.as_mut() else {
+            return Ok(());
+        };
+        w.write_nav_config(&ianav::nav::replay::config_to_toml(cfg))
+            .map_err(|source| OutputError::Io {
+                path: self.dir.join(files::SENSORS).display().to_string(),
+                source,
+            })
+    }
+
     /// Create `dir` and open the streaming files. `record_sensors` = false skips the sensor
     /// log (it is the largest file).
     pub fn new(dir: &Path, record_sensors: bool) -> Result<Self, OutputError> {

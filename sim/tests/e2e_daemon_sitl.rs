@@ -275,7 +275,11 @@ async fn fly_vehicle(
     let _one = ONE_FLIGHT.lock().await;
     let daemon_side = TcpListener::bind("127.0.0.1:0").await.unwrap();
     let vehicle_side = TcpListener::bind("127.0.0.1:0").await.unwrap();
-    let cfg = DaemonConfig::from_toml_str(
+    static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
+    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("ianav_e2e_{}_{n}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cfg = DaemonConfig::from_toml_str(
         &format!(
             "[mavlink]\nconnection = \"tcpout:{}\"\nclock = \"autopilot\"\n{daemon_toml}",
             daemon_side.local_addr().unwrap()
@@ -283,14 +287,13 @@ async fn fly_vehicle(
         None,
     )
     .unwrap();
+    // Every flight is recorded (`ianav run --record`) and its replay checked below.
+    let recording = dir.join("daemon.bin");
+    cfg.record = Some(recording.clone());
     let (htx, hrx) = tokio::sync::oneshot::channel();
     let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
     let handle = hrx.await.unwrap();
     let to_daemon = accept(&daemon_side, "the daemon").await;
-
-    static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
-    let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("ianav_e2e_{}_{n}", std::process::id()));
     let options = SitlOptions {
         connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
         vehicle: VehicleConfig {
@@ -367,6 +370,7 @@ async fn fly_vehicle(
     up.abort();
     let (daemon_msgs, stream_defects) = parse_stream(&bytes);
     let rows = read_rows(&dir.join("sitl.csv"));
+    assert_replay_gives_the_daemons_solutions(&recording, &counters);
     let _ = std::fs::remove_dir_all(&dir);
     Run {
         summary,
@@ -375,6 +379,39 @@ async fn fly_vehicle(
         daemon_msgs,
         stream_defects,
         wall_s,
+    }
+}
+
+/// The daemon's recording of a flight, replayed through the navigation core with the settings
+/// recorded in it, gives every solution the daemon's navigator handed its publisher, bit for
+/// bit (the same CSV text: numbers in their shortest exact form).
+fn assert_replay_gives_the_daemons_solutions(recording: &std::path::Path, counters: &Counters) {
+    assert!(!counters.record_failed, "recording failed");
+    let published = std::fs::read_to_string(ianav::daemon::nav_thread::Recorder::solutions_path(
+        recording,
+    ))
+    .unwrap();
+    let log = std::io::BufReader::new(std::fs::File::open(recording).unwrap());
+    let mut replayed = Vec::new();
+    let summary = ianav::nav::replay::replay_to_csv(
+        ianav::io::sensor_log::SensorLogReader::new(log).unwrap(),
+        1,
+        &mut replayed,
+    )
+    .unwrap();
+    let replayed = String::from_utf8(replayed).unwrap();
+    assert_eq!(summary.events, counters.events_recorded);
+    assert!(summary.solutions > 1_000, "{} solutions", summary.solutions);
+    if replayed != published {
+        let first = replayed
+            .lines()
+            .zip(published.lines())
+            .position(|(a, b)| a != b);
+        panic!(
+            "replay ({} lines) differs from the daemon's solutions ({} lines) at line {first:?}",
+            replayed.lines().count(),
+            published.lines().count()
+        );
     }
 }
 

@@ -59,6 +59,9 @@ pub enum DaemonError {
     /// The navigation thread could not be started or did not stop.
     #[error("navigation thread: {0}")]
     Thread(String),
+    /// The sensor log to record into could not be created.
+    #[error("record: {0}")]
+    Record(String),
     /// A worker panicked: the daemon stops rather than run on without it.
     #[error("{worker} panicked: {message}")]
     WorkerPanicked {
@@ -192,6 +195,10 @@ pub struct Counters {
     pub time_repeated: u64,
     /// Sensor events handed to the navigation thread.
     pub events_to_nav: u64,
+    /// Events written to the `--record` log.
+    pub events_recorded: u64,
+    /// Recording stopped by a write error.
+    pub record_failed: bool,
     /// Navigator counters.
     pub nav: NavigatorStats,
     /// INS counters.
@@ -595,7 +602,15 @@ pub async fn run(
     } else {
         clock.decimal_year()
     };
-    let nav = crate::nav::Navigator::new(&nav_config(&cfg, year))?;
+    let nav_cfg = nav_config(&cfg, year);
+    let nav = crate::nav::Navigator::new(&nav_cfg)?;
+    let recorder = match &cfg.record {
+        Some(path) => Some(
+            nav_thread::Recorder::create(path, &nav_cfg)
+                .map_err(|e| DaemonError::Record(format!("{}: {e}", path.display())))?,
+        ),
+        None => None,
+    };
     let (event_tx, event_rx) = mpsc::channel(EVENT_CHANNEL);
     let frames = Arc::new(nav_thread::FrameQueue::new(cfg.camera.queue_frames));
     let (latest_tx, latest_rx) = watch::channel(None::<Latest>);
@@ -609,6 +624,7 @@ pub async fn run(
     let (nav_exit_tx, nav_exit_rx) = tokio::sync::oneshot::channel();
     let nav_join = nav_thread::spawn(
         nav,
+        recorder,
         event_rx,
         frames.clone(),
         latest_tx,

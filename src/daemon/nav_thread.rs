@@ -13,8 +13,83 @@ use std::time::Instant;
 use tokio::sync::{mpsc, watch};
 
 use super::{Latest, Shared};
-use crate::nav::{Navigator, StartKind};
+use crate::io::sensor_log::SensorLogWriter;
+use crate::nav::{NavConfig, Navigator, StartKind};
 use crate::sensors::{Frame, SensorEvent};
+
+/// `ianav run --record FILE`: every event fed to the navigator, in the order fed (frames
+/// inline), into a sensor log headed by the navigation settings, so that `ianav replay`
+/// reproduces the solutions; and every solution the navigator produced (what the publisher was
+/// handed) into `FILE` with the extension `solutions.csv`, in `ianav replay`'s format. A write
+/// error stops the recording (logged, `record_failed`), never the navigation.
+#[derive(Debug)]
+pub struct Recorder {
+    log: Option<SensorLogWriter<std::io::BufWriter<std::fs::File>>>,
+    solutions: Option<std::io::BufWriter<std::fs::File>>,
+    line: String,
+    path: std::path::PathBuf,
+}
+
+impl Recorder {
+    /// Create (or truncate) `path` and its solutions file; write the header and `cfg`.
+    pub fn create(path: &std::path::Path, cfg: &NavConfig) -> std::io::Result<Self> {
+        use std::io::Write;
+        let file = std::io::BufWriter::new(std::fs::File::create(path)?);
+        let mut log = SensorLogWriter::new(file)?;
+        log.write_nav_config(&crate::nav::replay::config_to_toml(cfg))?;
+        let mut solutions =
+            std::io::BufWriter::new(std::fs::File::create(Self::solutions_path(path))?);
+        writeln!(solutions, "{}", crate::nav::replay::CSV_HEADER)?;
+        Ok(Self {
+            log: Some(log),
+            solutions: Some(solutions),
+            line: String::with_capacity(320),
+            path: path.to_path_buf(),
+        })
+    }
+
+    /// Where the solutions of the recording at `path` go.
+    pub fn solutions_path(path: &std::path::Path) -> std::path::PathBuf {
+        path.with_extension("solutions.csv")
+    }
+
+    fn record(&mut self, event: &SensorEvent, shared: &Shared) {
+        let Some(log) = self.log.as_mut() else { return };
+        match log.write(event) {
+            Ok(()) => shared.count(|c| c.events_recorded += 1),
+            Err(e) => self.fail(&e, shared),
+        }
+    }
+
+    fn solution(&mut self, sol: &crate::nav::NavSolution, shared: &Shared) {
+        use std::io::Write;
+        let Some(out) = self.solutions.as_mut() else {
+            return;
+        };
+        crate::nav::replay::csv_line(sol, &mut self.line);
+        if let Err(e) = writeln!(out, "{}", self.line) {
+            self.fail(&e, shared);
+        }
+    }
+
+    fn finish(&mut self, shared: &Shared) {
+        use std::io::Write;
+        let log = self.log.take().map(SensorLogWriter::finish);
+        let solutions = self.solutions.take().map(|mut s| s.flush());
+        for result in [log.map(|r| r.map(drop)), solutions].into_iter().flatten() {
+            if let Err(e) = result {
+                self.fail(&e, shared);
+            }
+        }
+    }
+
+    fn fail(&mut self, e: &std::io::Error, shared: &Shared) {
+        self.log = None;
+        self.solutions = None;
+        shared.count(|c| c.record_failed = true);
+        tracing::error!(path = %self.path.display(), "recording stopped: {e}");
+    }
+}
 
 /// Input of the navigation thread.
 #[derive(Debug)]
@@ -100,6 +175,7 @@ impl Drop for Exit {
 #[allow(clippy::too_many_arguments)] // the thread's inputs and outputs, each used once
 pub fn spawn(
     mut nav: Navigator,
+    mut recorder: Option<Recorder>,
     mut rx: mpsc::Receiver<NavInput>,
     frames: Arc<FrameQueue>,
     latest: watch::Sender<Option<Latest>>,
@@ -128,7 +204,11 @@ pub fn spawn(
                     }
                 }
                 for f in frames.drain() {
-                    nav.push(&SensorEvent::Frame(f));
+                    let frame = SensorEvent::Frame(f);
+                    if let Some(r) = recorder.as_mut() {
+                        r.record(&frame, &shared);
+                    }
+                    nav.push(&frame);
                 }
                 match input {
                     NavInput::FramesReady => {}
@@ -136,12 +216,18 @@ pub fn spawn(
                         if let SensorEvent::Gnss(fix) = &ev {
                             publisher.on_fix(fix.t_us);
                         }
+                        if let Some(r) = recorder.as_mut() {
+                            r.record(&ev, &shared);
+                        }
                         let sol = nav.push(&ev);
                         if nav.stats().initialisations > starts_logged {
                             starts_logged = nav.stats().initialisations;
                             log_start(&nav, &shared);
                         }
                         if let Some(sol) = sol {
+                            if let Some(r) = recorder.as_mut() {
+                                r.solution(&sol, &shared);
+                            }
                             if let Some(nis) = sol.ins.gnss_nis {
                                 let w = sol.ins.wind_ned_mps;
                                 tracing::debug!(
@@ -212,6 +298,9 @@ pub fn spawn(
                         c.ins = i;
                     });
                 }
+            }
+            if let Some(r) = recorder.as_mut() {
+                r.finish(&shared);
             }
         })
 }
