@@ -142,6 +142,54 @@ impl FrameQueue {
     }
 }
 
+/// The time contract on the thread's side: frames wait until the event stream reaches their
+/// time, and go to the navigator just before the first event at or after it, in time order.
+/// A frame therefore never goes ahead of older IMU samples already queued; one that arrives
+/// after newer IMU samples were applied goes at once, and the navigator navigates it with the
+/// INS pose at its time or rejects it as late (`nav.frames_late`).
+#[derive(Debug)]
+pub struct FrameMerge {
+    cap: usize,
+    /// Waiting frames, oldest first.
+    pending: VecDeque<Frame>,
+}
+
+impl FrameMerge {
+    /// At most `cap` frames wait (the oldest are dropped: no events, e.g. the link is lost).
+    pub fn new(cap: usize) -> Self {
+        Self {
+            cap: cap.max(1),
+            pending: VecDeque::with_capacity(cap.max(1)),
+        }
+    }
+
+    /// Add a frame; returns how many waiting frames were dropped to make room.
+    pub fn add(&mut self, f: Frame) -> u64 {
+        let at = self.pending.partition_point(|p| p.t_us <= f.t_us);
+        self.pending.insert(at, f);
+        let mut dropped = 0;
+        while self.pending.len() > self.cap {
+            self.pending.pop_front();
+            dropped += 1;
+        }
+        dropped
+    }
+
+    /// The oldest waiting frame taken at or before `t_us`.
+    pub fn pop_due(&mut self, t_us: u64) -> Option<Frame> {
+        if self.pending.front()?.t_us <= t_us {
+            self.pending.pop_front()
+        } else {
+            None
+        }
+    }
+
+    /// The oldest waiting frame, whatever its time (at the end).
+    pub fn pop(&mut self) -> Option<Frame> {
+        self.pending.pop_front()
+    }
+}
+
 /// The thread's end, reported to the supervisor (`daemon::run`) when it is dropped: on return
 /// and while unwinding from a panic alike. Carries the test fault armed for the thread.
 #[derive(Debug)]
@@ -192,6 +240,14 @@ pub fn spawn(
             let mut since_sync = 0_u32;
             let mut noisy_reported = 0_u64;
             let mut starts_logged = 0_u64;
+            let mut merge = FrameMerge::new(frames.cap);
+            let feed_frame = |nav: &mut Navigator, recorder: &mut Option<Recorder>, f| {
+                let frame = SensorEvent::Frame(f);
+                if let Some(r) = recorder.as_mut() {
+                    r.record(&frame, &shared);
+                }
+                nav.push(&frame);
+            };
             // The denied-mode covariance budget is logged once per loss.
             let mut budget_logged = false;
             while let Some(input) = rx.blocking_recv() {
@@ -204,15 +260,17 @@ pub fn spawn(
                     }
                 }
                 for f in frames.drain() {
-                    let frame = SensorEvent::Frame(f);
-                    if let Some(r) = recorder.as_mut() {
-                        r.record(&frame, &shared);
+                    let dropped = merge.add(f);
+                    if dropped > 0 {
+                        shared.count(|c| c.frames_dropped += dropped);
                     }
-                    nav.push(&frame);
                 }
                 match input {
                     NavInput::FramesReady => {}
                     NavInput::Event(ev, rx_at) => {
+                        while let Some(f) = merge.pop_due(ev.t_us()) {
+                            feed_frame(&mut nav, &mut recorder, f);
+                        }
                         if let SensorEvent::Gnss(fix) = &ev {
                             publisher.on_fix(fix.t_us);
                         }
@@ -299,6 +357,9 @@ pub fn spawn(
                     });
                 }
             }
+            while let Some(f) = merge.pop() {
+                feed_frame(&mut nav, &mut recorder, f);
+            }
             if let Some(r) = recorder.as_mut() {
                 r.finish(&shared);
             }
@@ -337,6 +398,142 @@ mod tests {
             height: 1,
             pixels: Arc::from(vec![0_u8]),
         }
+    }
+
+    #[test]
+    fn the_merge_sorts_waiting_frames_and_releases_them_at_their_time() {
+        let mut m = FrameMerge::new(3);
+        for t in [50, 20, 40] {
+            assert_eq!(m.add(frame(t)), 0);
+        }
+        assert!(m.pop_due(10).is_none());
+        assert_eq!(m.pop_due(45).map(|f| f.t_us), Some(20));
+        assert_eq!(m.pop_due(45).map(|f| f.t_us), Some(40));
+        assert!(m.pop_due(45).is_none());
+        // Full: the oldest waiting frame goes.
+        let added = (m.add(frame(60)), m.add(frame(30)), m.add(frame(70)));
+        assert_eq!(added, (0, 0, 1));
+        let rest: Vec<u64> = std::iter::from_fn(|| m.pop()).map(|f| f.t_us).collect();
+        assert_eq!(rest, vec![50, 60, 70]);
+    }
+
+    /// The navigation thread with frames and IMU samples arriving interleaved and out of
+    /// order: its recording (the order it fed the navigator) has every frame just before the
+    /// first event at or after its time, and a frame older than the reorder window is counted
+    /// late by the navigator.
+    #[test]
+    fn frames_and_imu_arriving_out_of_order_are_applied_in_time_order() {
+        use crate::ins::InsInit;
+        use crate::io::sensor_log::SensorLogReader;
+        use crate::math::wgs84::Geodetic;
+        use crate::sensors::{AirSample, ImuSample};
+        use nalgebra::{UnitQuaternion, Vector3};
+
+        let dir = std::env::temp_dir().join(format!("ianav_nav_thread_{}", std::process::id()));
+        std::fs::create_dir_all(&dir).unwrap();
+        let path = dir.join("rec.bin");
+        let cfg = Arc::new(
+            crate::config::DaemonConfig::from_toml_str(
+                "[mavlink]\nconnection = \"udpin:127.0.0.1:0\"\n[output]\nrate_hz = 30\n",
+                None,
+            )
+            .unwrap(),
+        );
+        let nav_cfg = crate::daemon::nav_config(&cfg, 2026.5);
+        let mut nav = Navigator::new(&nav_cfg).unwrap();
+        nav.initialise(&InsInit::new(
+            UnitQuaternion::identity(),
+            Geodetic {
+                lat_rad: 0.7,
+                lon_rad: -1.5,
+                h_m: 1_000.0,
+            },
+            Vector3::new(30.0, 0.0, 0.0),
+            2026.5,
+        ))
+        .unwrap();
+        let shared = Arc::new(Shared::default());
+        let (out_tx, _out_rx) = mpsc::channel(1024);
+        let outbox = super::super::Outbox {
+            tx: out_tx,
+            shared: shared.clone(),
+        };
+        let publisher = super::super::publish::Publisher::new(
+            cfg,
+            super::super::Clock::new(),
+            outbox,
+            shared.clone(),
+        );
+        let (tx, rx) = mpsc::channel(4096);
+        let queue = Arc::new(FrameQueue::new(8));
+        let (latest, _latest_rx) = watch::channel(None);
+        let (exit_tx, _exit_rx) = tokio::sync::oneshot::channel();
+        let recorder = Recorder::create(&path, &nav_cfg).unwrap();
+        let join = spawn(
+            nav,
+            Some(recorder),
+            rx,
+            queue.clone(),
+            latest,
+            publisher,
+            shared.clone(),
+            Exit::new(exit_tx, None),
+        )
+        .unwrap();
+        let send = |ev: SensorEvent| {
+            tx.blocking_send(NavInput::Event(ev, Instant::now()))
+                .unwrap()
+        };
+        let imu = |t_us| {
+            SensorEvent::Imu(ImuSample {
+                t_us,
+                gyro_rps: Vector3::zeros(),
+                accel_mps2: Vector3::new(0.0, 0.0, -9.81),
+            })
+        };
+        // Two frames out of order, queued before the IMU samples that precede them.
+        queue.push(frame(55_000));
+        queue.push(frame(25_000));
+        send(SensorEvent::Air(AirSample {
+            t_us: 0,
+            tas_mps: 30.0,
+            aoa_rad: None,
+            aos_rad: None,
+            p_pa: 89_874.0,
+            temp_k: 281.65,
+        }));
+        for k in 0..=200 {
+            send(imu(k * 10_000));
+        }
+        // 2 s of IMU applied; a frame 1.5 s old (late) and one 0.5 s old (in the window).
+        // Wait until the thread has taken every IMU sample so the frames come after them.
+        let deadline = Instant::now() + std::time::Duration::from_secs(10);
+        while shared.counters().solutions < 201 && Instant::now() < deadline {
+            std::thread::sleep(std::time::Duration::from_millis(5));
+        }
+        queue.push(frame(500_000));
+        queue.push(frame(1_500_000));
+        send(imu(2_010_000));
+        drop(tx);
+        join.join().unwrap();
+
+        let log = std::fs::read(&path).unwrap();
+        let order: Vec<(bool, u64)> = SensorLogReader::new(&log[..])
+            .unwrap()
+            .map(|e| e.unwrap())
+            .map(|e| (matches!(e, SensorEvent::Frame(_)), e.t_us()))
+            .collect();
+        let at = |frame_t| order.iter().position(|&(f, t)| f && t == frame_t).unwrap();
+        let next_t = |i: usize| order[i + 1].1;
+        // Each early frame right before the first IMU sample after it, in time order.
+        assert_eq!((next_t(at(25_000)), next_t(at(55_000))), (30_000, 60_000));
+        assert!(at(25_000) < at(55_000));
+        // The late pair: fed in time order before the next IMU sample.
+        assert!(at(500_000) < at(1_500_000) && next_t(at(1_500_000)) == 2_010_000);
+        let c = shared.counters();
+        assert_eq!((c.nav.frames, c.nav.frames_late), (3, 1));
+        assert_eq!(c.solutions, 202);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -5,6 +5,7 @@
 //! and re-initialise it ([`policy`]), and (to come) the visual navigation, whose frames it
 //! already receives and counts.
 
+pub mod history;
 pub mod policy;
 pub mod replay;
 pub mod solution;
@@ -16,7 +17,11 @@ use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO}
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
 use crate::sensors::SensorEvent;
 use crate::vision::camera::{CameraConfig, Mounting};
+use history::{HistoryPose, PoseHistory};
 use policy::{Running, StartState};
+
+/// Span of the INS pose history, µs: longer than any frame's age that is accepted.
+pub const POSE_HISTORY_US: u64 = 2_000_000;
 
 /// The camera as the navigation knows it: intrinsics and the *estimated* mounting (the true
 /// one is the vehicle's, or the simulator's).
@@ -40,6 +45,15 @@ pub struct NavConfig {
     /// it before the visual navigation).
     #[serde(skip)]
     pub camera: Option<NavCamera>,
+    /// The time contract's reorder window, µs: a frame taken more than this before the newest
+    /// IMU sample is rejected and counted (`frames_late`); one within it is navigated with the
+    /// INS pose at its own time (the pose history spans [`POSE_HISTORY_US`]).
+    #[serde(default = "default_reorder_window_us")]
+    pub reorder_window_us: u64,
+}
+
+fn default_reorder_window_us() -> u64 {
+    1_000_000
 }
 
 impl NavConfig {
@@ -50,6 +64,7 @@ impl NavConfig {
             ins,
             start: StartPolicy::new(mag_decimal_year),
             camera: None,
+            reorder_window_us: default_reorder_window_us(),
         }
     }
 }
@@ -59,8 +74,10 @@ impl NavConfig {
 pub struct NavigatorStats {
     /// Events dropped because the INS was not initialised yet.
     pub events_before_init: u64,
-    /// Camera frames received.
+    /// Camera frames received within the reorder window.
     pub frames: u64,
+    /// Camera frames older than the reorder window, rejected.
+    pub frames_late: u64,
     /// (Re)initialisations.
     pub initialisations: u64,
     /// Starts the INS refused (an invalid initial state).
@@ -79,6 +96,8 @@ pub struct Navigator {
     ins: Option<Ins>,
     /// The INS's latest solution (the GNSS-return re-initialisation starts from it).
     last: Option<InsSolution>,
+    /// The INS poses of the last [`POSE_HISTORY_US`].
+    history: PoseHistory,
     start: StartState,
     last_start: Option<StartRecord>,
     /// Aiding samples since the latest IMU sample: a new INS takes them, so that a start
@@ -103,6 +122,7 @@ impl Navigator {
             cfg: cfg.clone(),
             ins: None,
             last: None,
+            history: PoseHistory::new(POSE_HISTORY_US),
             start: StartState::default(),
             last_start: None,
             since_imu: Vec::with_capacity(4),
@@ -124,6 +144,7 @@ impl Navigator {
         }
         self.ins = Some(ins);
         self.last = None;
+        self.history.clear();
         self.stats.initialisations += 1;
         Ok(())
     }
@@ -136,6 +157,12 @@ impl Navigator {
     /// The latest (re)start made by the rules.
     pub fn last_start(&self) -> Option<&StartRecord> {
         self.last_start.as_ref()
+    }
+
+    /// The INS pose at `t_us` (a frame's exposure), interpolated in the history of the last
+    /// [`POSE_HISTORY_US`]; `None` outside it.
+    pub fn ins_pose_at(&self, t_us: u64) -> Option<HistoryPose> {
+        self.history.at(t_us)
     }
 
     /// Whether the INS is in GNSS-denied mode.
@@ -151,7 +178,14 @@ impl Navigator {
     /// Feed one event; an accepted IMU sample returns the solution at its time.
     pub fn push(&mut self, event: &SensorEvent) -> Option<NavSolution> {
         match event {
-            SensorEvent::Frame(_) => self.stats.frames += 1,
+            SensorEvent::Frame(f) => {
+                let newest = self.history.newest_t_us();
+                if newest.is_some_and(|t| f.t_us.saturating_add(self.cfg.reorder_window_us) < t) {
+                    self.stats.frames_late += 1;
+                    return None;
+                }
+                self.stats.frames += 1;
+            }
             SensorEvent::Imu(s) => self.check_imu_noise(s),
             _ => {}
         }
@@ -178,6 +212,12 @@ impl Navigator {
         };
         let sol = ins.push(event)?;
         self.last = Some(sol);
+        self.history.push(HistoryPose {
+            t_us: sol.t_us,
+            pos: sol.pos,
+            v_ned_mps: sol.v_ned_mps,
+            q_nb: sol.q_nb,
+        });
         Some(NavSolution::from_ins(sol, self.reset_counter))
     }
 
