@@ -8,7 +8,7 @@
 //! ECEF `E`, NED `N`, body `B`, camera `C`; Hamilton quaternions with `v_a = q_ab * v_b`;
 //! right perturbations `X ⊕ τ = X ∘ Exp(τ)`; SI units and radians; time in `t_us: u64`.
 
-pub mod config;
+#[cfg(feature = "daemon")]
 pub mod daemon;
 pub mod env;
 pub mod ins;

@@ -7,7 +7,7 @@ use std::time::Duration;
 use anyhow::Context;
 use clap::Parser;
 
-use ianav::config::ConfigError;
+use ianav::daemon::config::ConfigError;
 use ianav::daemon::preflight::preflight;
 
 /// GNSS-denied navigation daemon for fixed-wing UAVs.
@@ -157,7 +157,7 @@ fn in_file(file: &Path, e: ConfigError) -> anyhow::Error {
 
 /// The daemon until SIGINT / SIGTERM (exit 0) or a worker failure (the error: exit 1, and
 /// systemd restarts the daemon).
-async fn run(cfg: ianav::config::DaemonConfig) -> anyhow::Result<()> {
+async fn run(cfg: ianav::daemon::config::DaemonConfig) -> anyhow::Result<()> {
     let (htx, hrx) = tokio::sync::oneshot::channel();
     let mut daemon = tokio::spawn(ianav::daemon::run(cfg, Some(htx)));
     let Ok(handle) = hrx.await else {

@@ -13,7 +13,7 @@ use std::time::{Duration, Instant};
 
 use common::daemon_run::{start, stop};
 use common::fake_autopilot::{self as fa, Fake, Rx, wait_for};
-use ianav::config::DaemonConfig;
+use ianav::daemon::config::DaemonConfig;
 use mavlink::MavlinkVersion;
 use mavlink::dialects::ardupilotmega as apm;
 

@@ -11,8 +11,8 @@ use std::time::Duration;
 
 use common::daemon_run::{start, stop};
 use common::fake_autopilot::{self as fa, wait_for};
-use ianav::config::DaemonConfig;
 use ianav::daemon::Counters;
+use ianav::daemon::config::DaemonConfig;
 
 fn config(port: u16, camera: &str) -> DaemonConfig {
     let text = format!(

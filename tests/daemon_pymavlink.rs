@@ -8,7 +8,7 @@
 use std::process::Command;
 use std::time::Duration;
 
-use ianav::config::DaemonConfig;
+use ianav::daemon::config::DaemonConfig;
 
 fn pymavlink_available() -> bool {
     Command::new("python3")
@@ -77,7 +77,10 @@ async fn pymavlink_decodes_what_the_daemon_sends_and_the_daemon_accepts_what_it_
     // The daemon accepted pymavlink's frames: ArduPilot recognised, SCALED_IMU at ~50 Hz for
     // 6 s decoded, the INS ran on them, nothing failed to parse.
     let ap = handle.shared.state(|s| s.autopilot);
-    assert_eq!(ap, Some((1, 1, ianav::config::AutopilotKind::Ardupilot)));
+    assert_eq!(
+        ap,
+        Some((1, 1, ianav::daemon::config::AutopilotKind::Ardupilot))
+    );
     assert!(c.input.imu > 200, "{:?}", c.input);
     assert!(c.input.gnss >= 20 && c.input.air >= 40, "{:?}", c.input);
     let i = &c.input;

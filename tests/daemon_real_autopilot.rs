@@ -11,7 +11,7 @@ use std::time::{Duration, Instant};
 
 use common::daemon_run::{start, stop};
 use common::fake_autopilot::{self as fa, Fake, wait_for};
-use ianav::config::DaemonConfig;
+use ianav::daemon::config::DaemonConfig;
 use mavlink::dialects::ardupilotmega as apm;
 
 fn config(port: u16, extra: &str) -> DaemonConfig {

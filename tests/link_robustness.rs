@@ -14,7 +14,7 @@ use std::time::{Duration, Instant};
 use common::daemon_run::{start, stop};
 use common::extremes::{check_event, extreme_variants, nominal_inputs, seeded_variant};
 use common::fake_autopilot::{self as fa, Fake, Rx, wait_for};
-use ianav::config::{AutopilotKind, DaemonConfig, TemperatureSource};
+use ianav::daemon::config::{AutopilotKind, DaemonConfig, TemperatureSource};
 use ianav::env::magnetic::MagneticModel;
 use ianav::io::mavlink_in::{DecoderConfig, InputDecoder};
 use ianav::io::timesync::{ClockStamp, TimeSync, clock_stamp_us};

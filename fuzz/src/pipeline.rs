@@ -21,7 +21,9 @@ use std::io::Read;
 use std::rc::Rc;
 use std::sync::Arc;
 
-use ianav::config::{AoaSsaUse, AutopilotKind, ClockSource, DaemonConfig, TemperatureSource};
+use ianav::daemon::config::{
+    AoaSsaUse, AutopilotKind, ClockSource, DaemonConfig, TemperatureSource,
+};
 use ianav::ins::SensorCounters;
 use ianav::io::mavlink_in::{
     DecoderConfig, InputCounters, InputDecoder, MAX_ACCEL_MPS2, MAX_GYRO_RPS, MAX_MAG_NT,
@@ -335,7 +337,7 @@ impl Pipeline {
             aoa_ssa_is_vanes: cfg.input.aoa_ssa == AoaSsaUse::Vanes,
             gnss_lag_us: (cfg.input.gnss_lag_s * 1e6).round() as u64,
             mag_from_scaled_imu: cfg.input.magnetometer
-                == ianav::config::MagnetometerSource::ScaledImu,
+                == ianav::daemon::config::MagnetometerSource::ScaledImu,
         });
         let nav = Navigator::new(&ianav::daemon::nav_config(&cfg, MAG_DECIMAL_YEAR))?;
         Ok(Self {

@@ -15,7 +15,7 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
-use ianav::config::DaemonConfig;
+use ianav::daemon::config::DaemonConfig;
 use ianav::daemon::{self, Counters};
 use ianav::ins::{Ins, InsConfig, InsInit};
 use ianav::math::map_projection::MapProjection;

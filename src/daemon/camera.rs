@@ -23,7 +23,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::nav_thread::{FrameQueue, NavInput};
 use super::{Clock, Shared, stopped_after};
-use crate::config::{CameraSourceKind, DaemonConfig};
+use crate::daemon::config::{CameraSourceKind, DaemonConfig};
 use crate::io::frame_stream::{FrameHeader, HEADER_BYTES};
 use crate::sensors::Frame;
 
@@ -88,7 +88,7 @@ async fn frame_stream(
     mut stop: watch::Receiver<bool>,
 ) {
     let shared = out.shared.clone();
-    let autopilot_clock = cfg.mavlink.clock == crate::config::ClockSource::Autopilot;
+    let autopilot_clock = cfg.mavlink.clock == crate::daemon::config::ClockSource::Autopilot;
     let max_backoff = Duration::from_secs_f64(cfg.camera.retry_max_s);
     let silence = Duration::from_secs_f64(3.0 * cfg.camera.timeout_s);
     let mut backoff = Duration::from_millis(200);

@@ -24,7 +24,7 @@ use tokio::sync::watch;
 
 use super::Clock;
 use super::camera::Out;
-use crate::config::{CameraSourceKind, DaemonConfig};
+use crate::daemon::config::{CameraSourceKind, DaemonConfig};
 
 /// Why a captured image could not be used.
 #[derive(Debug, thiserror::Error)]

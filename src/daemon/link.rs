@@ -25,7 +25,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::nav_thread::NavInput;
 use super::{Clock, Outbox, Shared, stopped_after};
-use crate::config::{AoaSsaUse, AutopilotKind, DaemonConfig, MagnetometerSource};
+use crate::daemon::config::{AoaSsaUse, AutopilotKind, DaemonConfig, MagnetometerSource};
 use crate::io::mavlink_in::{self, DecoderConfig, InputDecoder};
 use crate::io::mavlink_out;
 use crate::io::timesync::{self, ClockStamp, Kind, MonotonicGate, TimeSync};
@@ -319,7 +319,7 @@ pub(super) async fn reader(
         ),
         ts: {
             let ts = TimeSync::new((cfg.mavlink.timesync_max_rtt_ms * 1e6) as u64);
-            if cfg.mavlink.clock == crate::config::ClockSource::Autopilot {
+            if cfg.mavlink.clock == crate::daemon::config::ClockSource::Autopilot {
                 ts.with_autopilot_clock()
             } else {
                 ts

@@ -18,6 +18,7 @@
 pub mod camera;
 #[cfg(feature = "opencv")]
 pub mod camera_cv;
+pub mod config;
 pub mod health;
 pub mod intervals;
 pub mod link;
@@ -31,7 +32,7 @@ use std::time::{Duration, Instant, SystemTime};
 
 use tokio::sync::{mpsc, watch};
 
-use crate::config::{AutopilotKind, DaemonConfig, OutputMode};
+use crate::daemon::config::{AutopilotKind, DaemonConfig, OutputMode};
 use crate::ins::InsStats;
 use crate::io::mavlink_in::InputCounters;
 use crate::io::mavlink_out::{self, Health};
@@ -876,7 +877,7 @@ async fn monitor(
     let mut link_lost_at: Option<u64> = None;
     let mut last_heartbeat_us: Option<u64> = None;
     let mut last_log_us = 0_u64;
-    let camera_used = cfg.camera.source != crate::config::CameraSourceKind::None;
+    let camera_used = cfg.camera.source != crate::daemon::config::CameraSourceKind::None;
     loop {
         if stopped_after(&mut stop, Duration::from_millis(100)).await {
             return;

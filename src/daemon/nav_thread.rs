@@ -433,7 +433,7 @@ mod tests {
         std::fs::create_dir_all(&dir).unwrap();
         let path = dir.join("rec.bin");
         let cfg = Arc::new(
-            crate::config::DaemonConfig::from_toml_str(
+            crate::daemon::config::DaemonConfig::from_toml_str(
                 "[mavlink]\nconnection = \"udpin:127.0.0.1:0\"\n[output]\nrate_hz = 30\n",
                 None,
             )

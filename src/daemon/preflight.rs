@@ -3,7 +3,7 @@
 
 use std::path::Path;
 
-use crate::config::{ConfigError, DaemonConfig, invalid, parse_log_filter};
+use crate::daemon::config::{ConfigError, DaemonConfig, invalid, parse_log_filter};
 
 /// A configuration that passed every start-up check, and what `run` needs from them.
 #[derive(Debug)]

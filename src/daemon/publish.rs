@@ -12,7 +12,7 @@ use std::time::Instant;
 
 use super::health::{OutputHealth, Transition};
 use super::{Clock, Outbox, Shared, resolved_mode};
-use crate::config::{DaemonConfig, OutputMode};
+use crate::daemon::config::{DaemonConfig, OutputMode};
 use crate::io::mavlink_out::{self, GpsInputSettings};
 use crate::math::map_projection::MapProjection;
 use crate::math::wgs84::Geodetic;
@@ -163,7 +163,7 @@ impl Publisher {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::config::AutopilotKind;
+    use crate::daemon::config::AutopilotKind;
     use tokio::sync::mpsc;
 
     fn publisher(

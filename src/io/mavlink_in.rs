@@ -45,12 +45,22 @@ use std::collections::VecDeque;
 
 use nalgebra::{UnitQuaternion, Vector3};
 
-use crate::config::TemperatureSource;
 use crate::env::atmosphere;
 use crate::math::so3;
 use crate::math::wgs84::Geodetic;
 use crate::sensors::{AirSample, GnssFix, ImuSample, MagSample, RefAttitude, SensorEvent};
 use mavlink::dialects::ardupilotmega as apm;
+
+/// Where the outside air temperature for the air data comes from.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum TemperatureSource {
+    /// The temperature the autopilot reports with the static pressure (SCALED_PRESSURE,
+    /// HIGHRES_IMU): right for an outside-air probe, biased warm for a sensor in the fuselage.
+    Sensor,
+    /// ISA temperature at the measured pressure altitude plus `air.isa_delta_t_k`.
+    Isa,
+}
 
 /// Standard gravity, m/s² (the "g" of mG).
 pub const G_MPS2: f64 = 9.806_65;

@@ -1,9 +1,12 @@
 //! Input and output of the navigation core: the sensor log format used to record flights
-//! (and to replay them), the camera frame stream from the vehicle, and the MAVLink mapping
-//! (messages in and out, time synchronisation) of the daemon.
+//! (and to replay them), the camera frame stream from the vehicle, and (feature `daemon`) the
+//! MAVLink mapping of the daemon (messages in and out, time synchronisation).
 
 pub mod frame_stream;
+#[cfg(feature = "daemon")]
 pub mod mavlink_in;
+#[cfg(feature = "daemon")]
 pub mod mavlink_out;
 pub mod sensor_log;
+#[cfg(feature = "daemon")]
 pub mod timesync;

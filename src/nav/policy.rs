@@ -436,7 +436,7 @@ mod tests {
     #[test]
     fn gnss_back_for_five_seconds_without_a_long_gap_re_initialises_from_the_current_estimate() {
         let policy = StartPolicy::new(YEAR);
-        let mut last = crate::io::mavlink_out::tests::solution().ins;
+        let mut last = crate::nav::solution::fixtures::solution().ins;
         last.gnss_denied = true;
         last.e_gyr_rps = Vector3::new(1e-5, -1e-5, 2e-5);
         let running = Some(Running {

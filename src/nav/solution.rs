@@ -94,3 +94,63 @@ impl NavSolution {
         }
     }
 }
+
+/// A solution to test consumers with.
+#[cfg(test)]
+pub(crate) mod fixtures {
+    use super::*;
+    use crate::ins::InsCovariance;
+    use crate::math::so3;
+    use nalgebra::SMatrix;
+
+    /// A level solution heading east at 30 m/s, reset counter 3, with distinct variances.
+    pub(crate) fn solution() -> NavSolution {
+        let pos = Geodetic {
+            lat_rad: 45.0_f64.to_radians(),
+            lon_rad: -75.0_f64.to_radians(),
+            h_m: 500.0,
+        };
+        let z3 = Matrix3::zeros();
+        NavSolution::from_ins(
+            InsSolution {
+                t_us: 1_000_000,
+                dt_s: 0.01,
+                imu_gap: false,
+                pos,
+                v_ned_mps: Vector3::new(0.0, 30.0, -1.0),
+                // Heading east (yaw 90°), level.
+                q_nb: so3::from_euler_zyx(std::f64::consts::FRAC_PI_2, 0.0, 0.0),
+                w_nb_b_rps: Vector3::new(0.01, 0.02, 0.03),
+                hp_m: 500.0,
+                roc_mps: 1.0,
+                tas_mps: 30.0,
+                aoa_rad: 0.05,
+                aos_rad: 0.0,
+                temp_k: 285.0,
+                delta_t_k: 0.0,
+                delta_p_pa: 0.0,
+                wind_ned_mps: Vector3::zeros(),
+                f_ib_b_mps2: Vector3::zeros(),
+                e_gyr_rps: Vector3::zeros(),
+                e_acc_mps2: Vector3::zeros(),
+                e_mag_nt: Vector3::zeros(),
+                delta_b_n_nt: Vector3::zeros(),
+                ref_attitude_err_rad: Vector3::zeros(),
+                gnss_denied: false,
+                gnss_nis: None,
+                cov: InsCovariance {
+                    attitude_rad2: Matrix3::from_diagonal(&Vector3::new(1e-4, 4e-4, 9e-4)),
+                    w_nb_b_rad2ps2: Matrix3::from_diagonal(&Vector3::new(1e-6, 2e-6, 3e-6)),
+                    e_gyr_rad2ps2: z3,
+                    velocity_m2ps2: Matrix3::from_diagonal(&Vector3::new(0.04, 0.09, 0.16)),
+                    position_m2: Matrix3::from_diagonal(&Vector3::new(9.0, 16.0, 4.0)),
+                    wind_m2ps2: z3,
+                    air_data: SMatrix::zeros(),
+                    delta_t_k2: 0.0,
+                    delta_p_pa2: 0.0,
+                },
+            },
+            3,
+        )
+    }
+}

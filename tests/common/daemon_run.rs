@@ -6,7 +6,7 @@
 
 use std::time::Duration;
 
-use ianav::config::DaemonConfig;
+use ianav::daemon::config::DaemonConfig;
 use ianav::daemon::{self, Counters, DaemonError, Handle};
 
 /// The running daemon's task.

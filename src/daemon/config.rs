@@ -112,16 +112,7 @@ pub enum ClockSource {
     Autopilot,
 }
 
-/// Where the outside air temperature for the air data comes from.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum TemperatureSource {
-    /// The temperature the autopilot reports with the static pressure (SCALED_PRESSURE,
-    /// HIGHRES_IMU): right for an outside-air probe, biased warm for a sensor in the fuselage.
-    Sensor,
-    /// ISA temperature at the measured pressure altitude plus `air.isa_delta_t_k`.
-    Isa,
-}
+pub use crate::io::mavlink_in::TemperatureSource;
 
 /// What the AOA_SSA message is.
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
@@ -809,7 +800,7 @@ pub fn parse_log_filter(s: &str) -> Result<tracing_subscriber::EnvFilter, String
 mod tests {
     use super::*;
 
-    const SHIPPED: &str = include_str!("../config/ianav.toml");
+    const SHIPPED: &str = include_str!("../../config/ianav.toml");
 
     fn parse(s: &str) -> Result<DaemonConfig, ConfigError> {
         DaemonConfig::from_toml_str(s, Some(Path::new("config")))
@@ -823,7 +814,7 @@ mod tests {
         let cfg = parse(SHIPPED).unwrap();
         assert_eq!(cfg.mavlink.component_id, 197);
         // ins.toml with the drifting-gyro random walk of an autopilot's MEMS IMU.
-        let mut ins = InsConfig::from_toml_str(include_str!("../config/ins.toml")).unwrap();
+        let mut ins = InsConfig::from_toml_str(include_str!("../../config/ins.toml")).unwrap();
         ins.attitude.q_e_gyr_rad2ps2 = 1.27e-10;
         assert_eq!(cfg.ins, ins);
         let min = parse(MINIMAL).unwrap();
