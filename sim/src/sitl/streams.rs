@@ -65,7 +65,7 @@ pub const ARDUPILOT_MAX_INTERVAL_MS: u64 = 60_000;
 
 /// The messages the vehicle can stream, by id, in the order they leave within one sensor
 /// instant: aiding data (GNSS, air data, vanes) before the IMU sample of the same instant, the
-/// order in which the simulator's own INS consumes them (`flight.rs`, `sample_sensors`).
+/// order in which the simulator's own INS consumes them (`flight/sensors.rs`, `sample_sensors`).
 pub const STREAMABLE: [u32; 14] = [
     apm::HEARTBEAT_DATA::ID,
     apm::TIMESYNC_DATA::ID,
