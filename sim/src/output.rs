@@ -1,7 +1,8 @@
 //! Files written by `ianav-sim run`: the decimated truth trajectory (CSV), every sensor sample
 //! (the binary log of `ianav::io::sensor_log`), with the INS in the loop its solution against
-//! the truth (CSV), a summary (TOML), PNG plots (ground track, altitude, airspeed, bank) and a
-//! Markdown report tying them together.
+//! the truth (CSV), a summary (TOML), PNG plots (ground track with the INS track, altitude,
+//! airspeed, attitude, INS errors; the GNSS loss marked on each) and a Markdown report tying
+//! them together.
 
 use std::fmt::Write as _;
 use std::fs::File;
@@ -17,7 +18,7 @@ use ianav::sensors::SensorEvent;
 use crate::control::Operation;
 use crate::flight::{FlightObserver, FlightSummary, TruthSample, estimate_from_nav};
 use crate::metrics;
-use crate::plots::{self, Chart, PALETTE, Series};
+use crate::plots::{self, Chart, PALETTE, PointMarker, Series, XMarker};
 
 /// Errors writing run outputs.
 #[derive(Debug, thiserror::Error)]
@@ -68,7 +69,8 @@ true_wind_n_mps,true_wind_e_mps,tas_mps,true_tas_mps,delta_t_k,true_delta_t_k,de
 true_delta_p_pa,e_gyr_x_dps,e_gyr_y_dps,e_gyr_z_dps,p_dps,q_dps,r_dps,true_p_dps,true_q_dps,\
 true_r_dps,aoa_deg,true_aoa_deg,aos_deg,true_aos_deg,nees_att,nees_vel,gnss_nis";
 
-/// Plot points kept per second of flight (the CSV keeps every output sample).
+/// One plot point kept every this many output samples (the CSV keeps every one), counted
+/// from mission time 0 so that the truth and INS points fall at the same instants.
 const PLOT_EVERY_N_SAMPLES: usize = 10;
 
 /// One decimated point of the plots.
@@ -87,6 +89,8 @@ struct PlotPoint {
 #[derive(Debug, Clone, Copy)]
 struct NavPoint {
     nse: metrics::NseSample,
+    /// INS position (the ground track's navigation line).
+    pos: Geodetic,
     /// Horizontal 1σ the INS reports, m.
     sigma_hor_m: f64,
     gnss_denied: bool,
@@ -101,11 +105,19 @@ pub struct RunWriter {
     /// Created at the first INS solution.
     navigation: Option<BufWriter<File>>,
     nav_points: Vec<NavPoint>,
+    /// INS outputs from mission time 0.
     nav_samples_seen: usize,
-    /// The last point with GNSS and the last point of all.
-    nav_before_loss: Option<NavPoint>,
+    /// The point at the first output after the last GNSS fix (the GNSS loss, if GNSS is lost)
+    /// and the last point of all.
+    nav_at_last_fix: Option<NavPoint>,
     nav_last: Option<NavPoint>,
+    /// A GNSS fix came since the last INS output.
+    fix_since_nav: bool,
+    /// Mission time of the first output the INS flagged GNSS-denied: the INS decides this
+    /// itself (its timeout without a fix), later than the scenario's GNSS loss.
+    ins_denied_s: Option<f64>,
     plot: Vec<PlotPoint>,
+    /// Truth outputs from mission time 0.
     samples_seen: usize,
     operations: Vec<(f64, usize, Operation)>,
     line: String,
@@ -168,8 +180,10 @@ impl RunWriter {
             navigation: None,
             nav_points: Vec::new(),
             nav_samples_seen: 0,
-            nav_before_loss: None,
+            nav_at_last_fix: None,
             nav_last: None,
+            fix_since_nav: false,
+            ins_denied_s: None,
             plot: Vec::new(),
             samples_seen: 0,
             operations: Vec::new(),
@@ -209,16 +223,29 @@ impl RunWriter {
             })
         };
         write(files::SUMMARY, &toml::to_string_pretty(summary)?)?;
-        let plots = self.draw_plots()?;
+        let plots = self.draw_plots(summary)?;
         write(files::REPORT, &self.report(summary, &plots))?;
         Ok(self.dir.join(files::REPORT))
     }
 
-    fn draw_plots(&self) -> Result<Vec<(&'static str, &'static str)>, OutputError> {
+    fn draw_plots(
+        &self,
+        summary: &FlightSummary,
+    ) -> Result<Vec<(&'static str, &'static str)>, OutputError> {
         let mut drawn = Vec::new();
         let Some(origin) = self.plot.first().map(|p| p.pos) else {
             return Ok(drawn);
         };
+        let loss_s = gnss_loss_in_flight(summary);
+        // To 0.1 s without a trailing ".0": plotters draws the point raised, like "·".
+        let loss_label = |t: f64| format!("GNSS lost at {} s", (t * 10.0).round() / 10.0);
+        let markers: Vec<XMarker> = loss_s
+            .map(|t| XMarker {
+                x: t,
+                label: loss_label(t),
+            })
+            .into_iter()
+            .collect();
         let t = |f: fn(&PlotPoint) -> f64| -> Vec<(f64, f64)> {
             self.plot.iter().map(|p| (p.t_s, f(p))).collect()
         };
@@ -228,64 +255,99 @@ impl RunWriter {
             rgb: PALETTE[k],
             dashed: false,
         };
-        let track: Vec<(f64, f64)> = self
+        let time_chart = |title: &'static str, y_label: &'static str, series: Vec<Series>| Chart {
+            title,
+            x_label: "mission time [s]",
+            y_label,
+            series,
+            x_markers: markers.clone(),
+            ..Chart::default()
+        };
+        // East and north of the first point, km.
+        let to_km = |pos: &Geodetic| {
+            let d = wgs84::ned_difference_m(&origin, pos);
+            (d.y / 1000.0, d.x / 1000.0)
+        };
+        let track: Vec<(f64, f64)> = self.plot.iter().map(|p| to_km(&p.pos)).collect();
+        let nav_track: Vec<(f64, f64)> = self.nav_points.iter().map(|p| to_km(&p.pos)).collect();
+        let timed: Vec<(f64, (f64, f64))> = self
             .plot
             .iter()
-            .map(|p| {
-                let d = wgs84::ned_difference_m(&origin, &p.pos);
-                (d.y / 1000.0, d.x / 1000.0)
-            })
+            .map(|p| p.t_s)
+            .zip(track.iter().copied())
             .collect();
+        let mut places = vec![PointMarker {
+            label: "start".into(),
+            at: track[0],
+            rgb: PALETTE[2],
+        }];
+        if let Some(t) = loss_s
+            && let Some(at) = track_at(&timed, t)
+        {
+            places.push(PointMarker {
+                label: loss_label(t),
+                at,
+                rgb: PALETTE[5],
+            });
+        }
+        let mut track_series = vec![line("truth", track, 0)];
+        if !nav_track.is_empty() {
+            // Dashed over the solid truth, so both show where they coincide (with GNSS).
+            track_series.push(Series {
+                dashed: true,
+                ..line("INS estimate", nav_track, 1)
+            });
+        }
         let charts = [
             (
                 "ground_track.png",
                 "Ground track",
                 Chart {
-                    title: "Ground track (truth)",
+                    title: if self.nav_points.is_empty() {
+                        "Ground track (truth)"
+                    } else {
+                        "Ground track: truth and INS estimate"
+                    },
                     x_label: "east [km]",
                     y_label: "north [km]",
-                    series: vec![line("", track, 0)],
+                    series: track_series,
                     equal_axes: true,
+                    points: places,
+                    ..Chart::default()
                 },
             ),
             (
                 "altitude.png",
                 "Altitude",
-                Chart {
-                    title: "Altitude (truth)",
-                    x_label: "mission time [s]",
-                    y_label: "altitude [m]",
-                    series: vec![
+                time_chart(
+                    "Altitude (truth)",
+                    "altitude [m]",
+                    vec![
                         line("geometric h", t(|p| p.h_m), 0),
                         line("pressure Hp", t(|p| p.hp_m), 1),
                     ],
-                    equal_axes: false,
-                },
+                ),
             ),
             (
                 "airspeed.png",
                 "Airspeed",
-                Chart {
-                    title: "True airspeed (truth)",
-                    x_label: "mission time [s]",
-                    y_label: "airspeed [m/s]",
-                    series: vec![line("", t(|p| p.tas_mps), 0)],
-                    equal_axes: false,
-                },
+                time_chart(
+                    "True airspeed (truth)",
+                    "airspeed [m/s]",
+                    vec![line("", t(|p| p.tas_mps), 0)],
+                ),
             ),
             (
                 "attitude.png",
                 "Bank and pitch",
-                Chart {
-                    title: "Bank and pitch (truth)",
-                    x_label: "mission time [s]",
-                    y_label: "angle [deg]",
-                    series: vec![
+                time_chart(
+                    "Bank and pitch (truth)",
+                    "angle [deg]",
+                    vec![
                         line("bank", t(|p| p.bank_deg), 0),
                         line("pitch", t(|p| p.pitch_deg), 1),
                     ],
-                    equal_axes: false,
-                },
+                ),
             ),
         ];
         for (file, caption, chart) in charts {
@@ -300,26 +362,23 @@ impl RunWriter {
                 (
                     "nav_attitude_error.png",
                     "INS attitude error",
-                    Chart {
-                        title: "INS attitude error (estimate − truth)",
-                        x_label: "mission time [s]",
-                        y_label: "error [deg]",
-                        series: vec![
+                    time_chart(
+                        "INS attitude error (estimate − truth)",
+                        "error [deg]",
+                        vec![
                             line("yaw", n(|p| p.nse.yaw_deg), 0),
                             line("pitch", n(|p| p.nse.pitch_deg), 1),
                             line("bank", n(|p| p.nse.bank_deg), 2),
                         ],
-                        equal_axes: false,
-                    },
+                    ),
                 ),
                 (
                     "nav_position_error.png",
                     "INS position error",
-                    Chart {
-                        title: "INS position error (estimate − truth)",
-                        x_label: "mission time [s]",
-                        y_label: "error [m]",
-                        series: vec![
+                    time_chart(
+                        "INS position error (estimate − truth)",
+                        "error [m]",
+                        vec![
                             line("horizontal", n(|p| p.nse.hor_m), 0),
                             Series {
                                 dashed: true,
@@ -327,8 +386,7 @@ impl RunWriter {
                             },
                             line("altitude", n(|p| p.nse.alt_m), 1),
                         ],
-                        equal_axes: false,
-                    },
+                    ),
                 ),
             ];
             for (file, caption, chart) in nav_charts {
@@ -355,9 +413,31 @@ impl RunWriter {
         let _ = writeln!(r, "| final position | {} |", format_position(&s.final_pos));
         let _ = writeln!(
             r,
-            "| time bases | sensor `t_us` from the warm-up start; mission time = t_us·1e-6 − {:.0} s; last GNSS fix at {:.0} s |",
-            s.warmup_s, s.gnss_loss_s
+            "| time bases | sensor `t_us` from the warm-up start; mission time = t_us·1e-6 − {:.0} s |",
+            s.warmup_s
         );
+        let loss_s = gnss_loss_in_flight(s);
+        match loss_s {
+            Some(t) => {
+                let _ = writeln!(
+                    r,
+                    "| GNSS lost (scenario) | {t:.1} s: last fix, none after |"
+                );
+            }
+            None => {
+                let _ = writeln!(
+                    r,
+                    "| GNSS lost (scenario) | not during the flight (scheduled at {:.1} s) |",
+                    s.gnss_loss_s
+                );
+            }
+        }
+        if let Some(t) = self.ins_denied_s {
+            let _ = writeln!(
+                r,
+                "| INS declared itself GNSS-denied | {t:.1} s: first output so flagged (the INS's own decision, once its timeout without a fix has run out) |"
+            );
+        }
         let _ = writeln!(r, "| sensor samples | {} |", s.sensor_events);
         let _ = writeln!(r, "| integration steps | {} |\n", s.truth_steps);
         let _ = writeln!(
@@ -379,8 +459,12 @@ impl RunWriter {
                 r,
                 "\n## Navigation error (INS in the loop)\n\nEstimate − truth; attitude errors as the paper's (Euler-angle differences and the norm of `Log(q_truth⁻¹ q_est)`); horizontal 1σ as the INS reports it.\n\n| | yaw [deg] | pitch [deg] | bank [deg] | attitude norm [deg] | altitude [m] | horizontal [m] | horizontal [% of distance] | horizontal 1σ reported [m] |\n|---|---|---|---|---|---|---|---|---|"
             );
+            // The GNSS-loss row only if GNSS was lost: otherwise the last fix is just the end.
             let rows = [
-                ("last step with GNSS", self.nav_before_loss),
+                (
+                    "GNSS lost",
+                    self.nav_at_last_fix.filter(|_| loss_s.is_some()),
+                ),
                 ("end of flight", Some(last)),
             ];
             for (name, p) in rows {
@@ -390,7 +474,11 @@ impl RunWriter {
                     r,
                     "| {name} (t = {:.1} s{}) | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {:.1} | {} | {:.1} |",
                     e.t_s,
-                    if p.gnss_denied { ", GNSS denied" } else { "" },
+                    if p.gnss_denied {
+                        ", INS GNSS-denied"
+                    } else {
+                        ""
+                    },
                     e.yaw_deg,
                     e.pitch_deg,
                     e.bank_deg,
@@ -424,6 +512,25 @@ impl RunWriter {
         );
         r
     }
+}
+
+/// Mission time of the GNSS loss if it happened during the flight (the scenario may schedule
+/// it after the end).
+fn gnss_loss_in_flight(s: &FlightSummary) -> Option<f64> {
+    (s.gnss_loss_s < s.duration_s).then_some(s.gnss_loss_s)
+}
+
+/// Position at time `t` on a time-ordered track of `(t, (x, y))`, interpolated linearly
+/// (the plot points are a second apart); `None` outside the track.
+fn track_at(track: &[(f64, (f64, f64))], t: f64) -> Option<(f64, f64)> {
+    let i = track.partition_point(|p| p.0 < t);
+    let (tb, b) = *track.get(i)?;
+    if tb == t {
+        return Some(b);
+    }
+    let (ta, a) = *track.get(i.checked_sub(1)?)?;
+    let f = (t - ta) / (tb - ta);
+    Some((a.0 + f * (b.0 - a.0), a.1 + f * (b.1 - a.1)))
 }
 
 /// `45.06352° N, 89.95502° W, 2794 m`.
@@ -469,6 +576,9 @@ fn describe_trigger(op: &Operation) -> String {
 
 impl FlightObserver for RunWriter {
     fn sensor_event(&mut self, event: &SensorEvent) {
+        if matches!(event, SensorEvent::Gnss(_)) {
+            self.fix_since_nav = true;
+        }
         if let Some(writer) = self.sensors.as_mut() {
             let result = writer.write(event);
             self.keep_error(files::SENSORS, result);
@@ -517,18 +627,20 @@ impl FlightObserver for RunWriter {
         );
         let result = writeln!(self.truth, "{}", self.line);
         self.keep_error(files::TRUTH, result);
-        if s.t_s >= 0.0 && self.samples_seen.is_multiple_of(PLOT_EVERY_N_SAMPLES) {
-            self.plot.push(PlotPoint {
-                t_s: s.t_s,
-                pos: s.pos,
-                h_m: s.pos.h_m,
-                hp_m: s.hp_m,
-                tas_mps: s.air.tas_mps,
-                bank_deg: e.z,
-                pitch_deg: e.y,
-            });
+        if s.t_s >= 0.0 {
+            if self.samples_seen.is_multiple_of(PLOT_EVERY_N_SAMPLES) {
+                self.plot.push(PlotPoint {
+                    t_s: s.t_s,
+                    pos: s.pos,
+                    h_m: s.pos.h_m,
+                    hp_m: s.hp_m,
+                    tas_mps: s.air.tas_mps,
+                    bank_deg: e.z,
+                    pitch_deg: e.y,
+                });
+            }
+            self.samples_seen += 1;
         }
-        self.samples_seen += 1;
     }
 
     fn nav_solution(&mut self, truth: &TruthSample, sol: &NavSolution) {
@@ -560,17 +672,23 @@ impl FlightObserver for RunWriter {
         let nees = metrics::nees(truth, sol).unwrap_or((f64::NAN, f64::NAN));
         let point = NavPoint {
             nse: e,
+            pos: sol.pos,
             sigma_hor_m: (sd(&c.position_m2, 0).powi(2) + sd(&c.position_m2, 1).powi(2)).sqrt(),
             gnss_denied: sol.ins_status.gnss_denied,
         };
-        if !sol.ins_status.gnss_denied {
-            self.nav_before_loss = Some(point);
+        if std::mem::take(&mut self.fix_since_nav) {
+            self.nav_at_last_fix = Some(point);
+        }
+        if sol.ins_status.gnss_denied && self.ins_denied_s.is_none() {
+            self.ins_denied_s = Some(truth.t_s);
         }
         self.nav_last = Some(point);
-        if truth.t_s >= 0.0 && self.nav_samples_seen.is_multiple_of(PLOT_EVERY_N_SAMPLES) {
-            self.nav_points.push(point);
+        if truth.t_s >= 0.0 {
+            if self.nav_samples_seen.is_multiple_of(PLOT_EVERY_N_SAMPLES) {
+                self.nav_points.push(point);
+            }
+            self.nav_samples_seen += 1;
         }
-        self.nav_samples_seen += 1;
         self.line.clear();
         let _ = write!(
             self.line,
@@ -644,5 +762,61 @@ impl FlightObserver for RunWriter {
 
     fn operation_started(&mut self, t_s: f64, index: usize, operation: &Operation) {
         self.operations.push((t_s, index, *operation));
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::flight::{Flight, FlightSetup, NavigationMode};
+
+    #[test]
+    fn track_at_interpolates_inside_the_track_only() {
+        let track = [(0.0, (0.0, 0.0)), (1.0, (2.0, -4.0)), (2.0, (3.0, 0.0))];
+        assert_eq!(track_at(&track, 0.5), Some((1.0, -2.0)));
+        assert_eq!(track_at(&track, 1.0), Some((2.0, -4.0)));
+        assert_eq!(track_at(&track, 0.0), Some((0.0, 0.0)));
+        assert_eq!(track_at(&track, -0.1), None);
+        assert_eq!(track_at(&track, 2.1), None);
+        assert_eq!(track_at(&[], 0.0), None);
+    }
+
+    /// A short INS flight losing GNSS at 10 s: the INS track is kept for the ground track, and
+    /// the report gives the scenario's loss time wherever it speaks of the loss, with the
+    /// INS's later switch to GNSS-denied mode labelled as such.
+    #[test]
+    fn the_report_states_the_scenario_gnss_loss_and_the_ins_track_is_kept() {
+        let dir = std::env::temp_dir().join(format!("ianav-output-{}", std::process::id()));
+        let mut setup = FlightSetup::builtin(2).unwrap();
+        setup.navigation = NavigationMode::Ins;
+        setup.scenario.duration_s = 30.0;
+        setup.scenario.gnss_loss_s = 10.0;
+        let mut writer = RunWriter::new(&dir, false).unwrap();
+        let summary = Flight::new(&setup, 1)
+            .unwrap()
+            .run(&mut writer, |_| {})
+            .unwrap();
+
+        // One INS point per second from mission time 0, at the truth's instants, close to it.
+        let (truth, nav) = (&writer.plot, &writer.nav_points);
+        assert_eq!(nav.len(), truth.len());
+        assert!(nav.len() >= 30 && truth[0].t_s == 0.0, "{}", nav.len());
+        for (p, t) in nav.iter().zip(truth) {
+            assert_eq!(p.nse.t_s, t.t_s);
+            let d = wgs84::ned_difference_m(&t.pos, &p.pos);
+            assert!(d.x.hypot(d.y) < 100.0, "{d:?} at {} s", t.t_s);
+        }
+        let switch_s = writer.ins_denied_s.expect("the INS notices the loss");
+        assert!(switch_s > 10.0 && switch_s < 13.0, "{switch_s}");
+
+        let report = std::fs::read_to_string(writer.finish(&summary).unwrap()).unwrap();
+        let loss_lines: Vec<&str> = report.lines().filter(|l| l.contains("GNSS lost")).collect();
+        assert_eq!(loss_lines.len(), 2, "{report}");
+        assert!(loss_lines[0].starts_with("| GNSS lost (scenario) | 10.0 s"));
+        assert!(loss_lines[1].starts_with("| GNSS lost (t = 10.0 s) |"));
+        let switch = format!("| INS declared itself GNSS-denied | {switch_s:.1} s");
+        assert!(report.contains(&switch), "{report}");
+        assert!(dir.join("ground_track.png").is_file());
+        std::fs::remove_dir_all(&dir).unwrap();
     }
 }

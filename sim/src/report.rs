@@ -417,7 +417,7 @@ fn draw_plots(
                 line("mean ± σ (dashed)", &|s| s.mean + s.std, true),
                 line("", &|s| s.mean - s.std, true),
             ],
-            equal_axes: false,
+            ..Chart::default()
         };
         let any_finite = chart
             .series
