@@ -111,7 +111,8 @@ impl AirDataFilter {
         }
         self.x = f * self.x;
         let q = SVector::<f64, NX>::from_column_slice(&cfg.q) * q_scale;
-        ekf::predict_covariance(&mut self.p, &f, &q);
+        // Rows from ROC on are the identity's.
+        ekf::predict_covariance_top(&mut self.p, &f.fixed_rows::<ROC>(0).into_owned(), &q);
         self.hold_angles_without_vane(cfg);
     }
 
@@ -142,15 +143,14 @@ impl AirDataFilter {
     fn scalar(&mut self, index: usize, r: f64, h: f64, sigma: f64) {
         let mut hm = SMatrix::<f64, 1, NX>::zeros();
         hm[index] = h;
-        let res = ekf::update(
+        let res = ekf::update_rows(
             &mut self.p,
             &hm,
             &SVector::<f64, 1>::new(sigma * sigma),
             &SVector::<f64, 1>::new(r),
-            None,
         );
         match res {
-            Ok(c) => self.x += c.dx,
+            Ok(dx) => self.x += dx,
             Err(UpdateRejection::Numerical | UpdateRejection::Gated { .. }) => {
                 self.numerical_rejections += 1;
             }

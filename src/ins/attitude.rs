@@ -243,13 +243,13 @@ impl AttitudeFilter {
         let dx = match (mag_nt, ctx.b_model_n) {
             (Some(b), Some(_)) => {
                 y.fixed_rows_mut::<3>(6).copy_from(b);
-                ekf::update(&mut self.p, &hm, &r, &(y - h), None)?.dx
+                ekf::update_rows(&mut self.p, &hm, &r, &(y - h))?
             }
             _ => {
                 let r6 = r.fixed_rows::<6>(0).into_owned();
                 let h6 = hm.fixed_rows::<6>(0).into_owned();
                 let innov = (y - h).fixed_rows::<6>(0).into_owned();
-                ekf::update(&mut self.p, &h6, &r6, &innov, None)?.dx
+                ekf::update_rows(&mut self.p, &h6, &r6, &innov)?
             }
         };
         self.apply(&dx);

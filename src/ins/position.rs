@@ -28,7 +28,7 @@
 
 use std::collections::VecDeque;
 
-use nalgebra::{Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
+use nalgebra::{Matrix2, Matrix3, SMatrix, SVector, UnitQuaternion, Vector3};
 
 use super::air_data;
 use super::config::{AirDataFilterConfig, PositionFilterConfig};
@@ -39,6 +39,49 @@ use crate::math::wgs84::{self, Geodetic};
 use crate::sensors::GnssFix;
 
 /// Number of error states of the GNSS filter.
+/// What the position part of the cascade takes from the air-data and attitude filters at one
+/// step.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct AirInputs {
+    /// Attitude, body to NED.
+    pub q_nb: UnitQuaternion<f64>,
+    /// True airspeed, m/s.
+    pub tas_mps: f64,
+    /// Pressure altitude, m.
+    pub hp_m: f64,
+    /// Temperature offset ΔT, K.
+    pub delta_t_k: f64,
+    /// Covariance of the air-data temperature and pressure altitude `[T, Hp]`.
+    pub t_hp_cov: Matrix2<f64>,
+    /// Air velocity, NED, m/s.
+    pub v_air_n: Vector3<f64>,
+    /// Its covariance, m²/s².
+    pub v_air_cov: Matrix3<f64>,
+}
+
+/// The GNSS filter's height and ground velocity with their (co)variances, for the estimates
+/// frozen at the loss.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct GnssFilterState {
+    /// Geometric height, m, and its variance, m².
+    pub h_m: f64,
+    pub var_h_m2: f64,
+    /// Ground velocity, NED, m/s, and its covariance.
+    pub v_n: Vector3<f64>,
+    pub v_cov: Matrix3<f64>,
+}
+
+/// The propagation sub-steps of one IMU interval.
+#[derive(Debug, Clone, Copy)]
+pub(crate) struct SubSteps {
+    /// Length of one sub-step, s.
+    pub dt_s: f64,
+    /// Number of sub-steps.
+    pub n: u32,
+    /// Scale of the per-step Q̃ for one sub-step.
+    pub q_scale: f64,
+}
+
 pub(crate) const NX: usize = 12;
 /// Offset of the NED position error, m.
 const P: usize = 0;
@@ -237,12 +280,15 @@ impl GnssFilter {
         // ∫₀^Δt exp(−Ωs) ds and ∫₀^Δt ∫₀^s exp(−Ωu) du ds, to second order in Ω.
         let int1 = eye * dt_s - om * (dt2 / 2.0) + om2 * (dt3 / 6.0);
         let int2 = eye * (dt2 / 2.0) - om * (dt3 / 6.0) + om2 * (dt4 / 24.0);
-        let mut fm = SMatrix::<f64, NX, NX>::identity();
-        fm.fixed_view_mut::<3, 3>(P, V).copy_from(&int1);
-        fm.fixed_view_mut::<3, 3>(V, V)
+        // The transition's rows P and V; rows F and E_acc are the identity's.
+        let mut f_top = SMatrix::<f64, F, NX>::zeros();
+        f_top.fixed_view_mut::<3, 3>(P, P).fill_with_identity();
+        f_top.fixed_view_mut::<3, 3>(P, V).copy_from(&int1);
+        f_top
+            .fixed_view_mut::<3, 3>(V, V)
             .copy_from(&(eye - om * dt_s + om2 * (dt2 / 2.0)));
-        fm.fixed_view_mut::<3, 3>(V, F).copy_from(&(int1 * c_nb));
-        fm.fixed_view_mut::<3, 3>(P, F).copy_from(&(int2 * c_nb));
+        f_top.fixed_view_mut::<3, 3>(V, F).copy_from(&(int1 * c_nb));
+        f_top.fixed_view_mut::<3, 3>(P, F).copy_from(&(int2 * c_nb));
         let mut q = SVector::<f64, NX>::zeros();
         for i in 0..3 {
             q[P + i] = cfg.q_position_m2 * q_scale;
@@ -250,7 +296,7 @@ impl GnssFilter {
             q[F + i] = cfg.q_specific_force_m2ps4 * q_scale;
             q[EA + i] = cfg.q_e_acc_m2ps4 * q_scale;
         }
-        ekf::predict_covariance(&mut self.p, &fm, &q);
+        ekf::predict_covariance_top(&mut self.p, &f_top, &q);
     }
 
     /// Fast update with the accelerometer: `f̃ = f + E_acc`.
@@ -265,8 +311,8 @@ impl GnssFilter {
         h.fixed_view_mut::<3, 3>(0, EA).fill_with_identity();
         let r = Vector3::repeat(cfg.r_accel_m2ps4 * r_scale);
         let innov = accel_mps2 - (self.f_b + self.e_acc);
-        let c = ekf::update(&mut self.p, &h, &r, &innov, None)?;
-        self.apply(&c.dx);
+        let dx = ekf::update_rows(&mut self.p, &h, &r, &innov)?;
+        self.apply(&dx);
         Ok(())
     }
 
@@ -611,24 +657,21 @@ impl GnssPhaseEstimates {
         self.v_air_n.value()
     }
 
-    /// One step of `dt_s` with the raw inputs. Non-finite raw values are skipped (the filters
-    /// hold), so a transient numerical problem cannot poison the frozen values.
-    #[allow(clippy::too_many_arguments)]
-    pub fn step(
-        &mut self,
-        dt_s: f64,
-        q_nb: &UnitQuaternion<f64>,
-        tas_mps: f64,
-        hp_m: f64,
-        var_hp: f64,
-        h_m: f64,
-        var_h: f64,
-        delta_t_k: f64,
-        wind_n: Vector3<f64>,
-        wind_cov: Matrix3<f64>,
-        v_air_n: Vector3<f64>,
-    ) {
-        let (dp, dp_var) = raw_delta_p(hp_m, var_hp, h_m, var_h, delta_t_k);
+    /// One step of `dt_s`: the raw Δp from the air data and the filter's height, the raw wind
+    /// from the filter's ground velocity and the air velocity. Non-finite raw values are
+    /// skipped (the filters hold), so a transient numerical problem cannot poison the frozen
+    /// values.
+    pub fn step(&mut self, dt_s: f64, air: &AirInputs, gnss: &GnssFilterState) {
+        let (q_nb, tas_mps, v_air_n) = (&air.q_nb, air.tas_mps, air.v_air_n);
+        let wind_n = gnss.v_n - air.v_air_n;
+        let wind_cov = gnss.v_cov + air.v_air_cov;
+        let (dp, dp_var) = raw_delta_p(
+            air.hp_m,
+            air.t_hp_cov[(1, 1)],
+            gnss.h_m,
+            gnss.var_h_m2,
+            air.delta_t_k,
+        );
         if dp.is_finite() && dp_var.is_finite() {
             self.delta_p_pa.step(dp, dt_s);
             self.delta_p_var.step(dp_var, dt_s);
@@ -896,32 +939,22 @@ impl DeniedNav {
         h.fixed_view_mut::<3, 3>(0, 3).fill_with_identity();
         let r = Vector3::repeat(cfg.r_accel_m2ps4 * r_scale);
         let innov = accel_mps2 - (self.f_b + self.e_acc);
-        let c = ekf::update(&mut self.p6, &h, &r, &innov, None)?;
-        self.f_b += c.dx.fixed_rows::<3>(0);
-        self.e_acc += c.dx.fixed_rows::<3>(3);
+        let dx = ekf::update_rows(&mut self.p6, &h, &r, &innov)?;
+        self.f_b += dx.fixed_rows::<3>(0);
+        self.e_acc += dx.fixed_rows::<3>(3);
         Ok(())
     }
 
     /// Dead-reckoning step: ground velocity from the frozen wind and the air-relative
-    /// velocity, altitude from the barometer, horizontal position integrated over `n_sub`
-    /// sub-steps of `dt_sub_s`; `q_nb` and `tas_mps` map and time the gust and bias errors,
-    /// `v_air_n` the attitude error. `v_air_cov` is the white remainder: the air-data part of
-    /// the air velocity's covariance (its attitude part is the `δθ_n` state).
-    #[allow(clippy::too_many_arguments)]
-    pub fn propagate(
-        &mut self,
-        cfg: &PositionFilterConfig,
-        q_nb: &UnitQuaternion<f64>,
-        tas_mps: f64,
-        v_air_n: &Vector3<f64>,
-        v_air_cov: &Matrix3<f64>,
-        hp_m: f64,
-        delta_t_k: f64,
-        air_t_hp_cov: &nalgebra::Matrix2<f64>,
-        dt_sub_s: f64,
-        n_sub: u32,
-        q_scale_sub: f64,
-    ) {
+    /// velocity, altitude from the barometer, horizontal position integrated over the
+    /// sub-steps; the attitude and airspeed map and time the gust and bias errors, the air
+    /// velocity the attitude error. Its covariance `v_air_cov` is the white remainder: the
+    /// air-data part (the attitude part is the `δθ_n` state).
+    pub fn propagate(&mut self, cfg: &PositionFilterConfig, air: &AirInputs, sub: SubSteps) {
+        let (q_nb, tas_mps, v_air_n, v_air_cov) =
+            (&air.q_nb, air.tas_mps, &air.v_air_n, &air.v_air_cov);
+        let (hp_m, delta_t_k, air_t_hp_cov) = (air.hp_m, air.delta_t_k, &air.t_hp_cov);
+        let (dt_sub_s, n_sub, q_scale_sub) = (sub.dt_s, sub.n, sub.q_scale);
         let c_nb = q_nb.to_rotation_matrix().into_inner();
         self.v_n = self.wind_n + v_air_n;
         // Altitude: h(Hp, ΔT(T, Hp), Δp); ∂/∂T = ∂h/∂ΔT, ∂/∂Hp = ∂h/∂Hp − β_T ∂h/∂ΔT.
@@ -942,41 +975,47 @@ impl DeniedNav {
             wgs84::radius_meridian_m(self.pos.lat_rad),
             wgs84::radius_prime_vertical_m(self.pos.lat_rad),
         );
-        // δp' = δp + Δt (δw + C δg + C δb), δg' = a δg + noise (a = exp(−Δt V/L)).
-        let mut phi = SMatrix::<f64, NDR, NDR>::identity();
+        // δp' = δp + Δt (δw + C δg + C δb), δg' = a δg + noise (a = exp(−Δt V/L)): the
+        // transition's rows δp (`phi_p`), then a diagonal (`decay`: a on δg, 1 elsewhere).
+        let mut decay = SVector::<f64, NDR>::repeat(1.0);
         let mut q_g = Vector3::zeros();
         if tas_mps.is_finite() {
             for i in 0..3 {
                 let a = (-dt_sub_s / gust_tau_s(self.gust_scale_m[i], tas_mps)).exp();
-                phi[(DR_G + i, DR_G + i)] = a;
+                decay[DR_G + i] = a;
                 q_g[i] = self.gust_var_b[i] * (1.0 - a * a);
             }
         }
-        phi.fixed_view_mut::<3, 3>(DR_P, DR_W)
+        let mut phi_p = SMatrix::<f64, 3, NDR>::zeros();
+        phi_p.fixed_view_mut::<3, 3>(0, DR_P).fill_with_identity();
+        phi_p
+            .fixed_view_mut::<3, 3>(0, DR_W)
             .copy_from(&(Matrix3::identity() * dt_sub_s));
-        phi.fixed_view_mut::<3, 3>(DR_P, DR_G)
+        phi_p
+            .fixed_view_mut::<3, 3>(0, DR_G)
             .copy_from(&(c_nb * dt_sub_s));
-        phi.fixed_view_mut::<3, 3>(DR_P, DR_B)
+        phi_p
+            .fixed_view_mut::<3, 3>(0, DR_B)
             .copy_from(&(c_nb * dt_sub_s));
         // (Ĉ − C) v_air = [v_air,n]× δθ_n.
         let j_va = so3::skew(v_air_n);
-        phi.fixed_view_mut::<3, 3>(DR_P, DR_A)
+        phi_p
+            .fixed_view_mut::<3, 3>(0, DR_A)
             .copy_from(&(j_va * dt_sub_s));
         let add = v_air_cov * (dt_sub_s * dt_sub_s);
         for _ in 0..n_sub {
             let lat = self.pos.lat_rad;
             self.pos.lat_rad += dt_sub_s * self.v_n.x / (m + self.pos.h_m);
             self.pos.lon_rad += dt_sub_s * self.v_n.y / ((n + self.pos.h_m) * lat.cos());
-            let mut p_new = phi * self.p_dr * phi.transpose();
+            ekf::transform_covariance_top(&mut self.p_dr, &phi_p, Some(&decay));
             for r in 0..3 {
                 for c in 0..3 {
-                    p_new[(DR_P + r, DR_P + c)] += add[(r, c)];
+                    self.p_dr[(DR_P + r, DR_P + c)] += add[(r, c)];
                 }
-                p_new[(DR_P + r, DR_P + r)] += cfg.q_position_m2 * q_scale_sub;
-                p_new[(DR_G + r, DR_G + r)] += q_g[r];
+                self.p_dr[(DR_P + r, DR_P + r)] += cfg.q_position_m2 * q_scale_sub;
+                self.p_dr[(DR_G + r, DR_G + r)] += q_g[r];
             }
-            ekf::symmetrize(&mut p_new);
-            self.p_dr = p_new;
+            ekf::symmetrize(&mut self.p_dr);
         }
         // δv = δw + C (δg + δb) + [v_air,n]× δθ_n + δv_air.
         let mut hv = SMatrix::<f64, 3, NDR>::zeros();
@@ -1256,9 +1295,15 @@ mod tests {
         wind_n: Vector3<f64>,
         v_air_n: Vector3<f64>,
     ) {
-        let cov = Matrix3::identity() * 0.01;
         est.step(
-            dt_s, q_nb, tas_mps, 2000.0, 1.0, 2100.0, 1.0, 5.0, wind_n, cov, v_air_n,
+            dt_s,
+            &air_inputs(q_nb, tas_mps, v_air_n),
+            &GnssFilterState {
+                h_m: 2100.0,
+                var_h_m2: 1.0,
+                v_n: wind_n + v_air_n,
+                v_cov: Matrix3::identity() * 0.01,
+            },
         );
     }
 
@@ -1404,6 +1449,20 @@ mod tests {
 
     /// `n` dead-reckoning steps of `dt_s` at 30 m/s with attitude `q_nb`, air velocity
     /// `v_air_n` and no air-data noise.
+    /// Air data at 2,000 m of pressure altitude, ΔT 5 K, unit `[T, Hp]` covariance and no
+    /// white air-velocity uncertainty.
+    fn air_inputs(q_nb: &UnitQuaternion<f64>, tas_mps: f64, v_air_n: Vector3<f64>) -> AirInputs {
+        AirInputs {
+            q_nb: *q_nb,
+            tas_mps,
+            hp_m: 2000.0,
+            delta_t_k: 5.0,
+            t_hp_cov: Matrix2::identity(),
+            v_air_n,
+            v_air_cov: Matrix3::zeros(),
+        }
+    }
+
     fn propagate_steps(
         nav: &mut DeniedNav,
         cfg: &PositionFilterConfig,
@@ -1415,16 +1474,12 @@ mod tests {
         for _ in 0..n {
             nav.propagate(
                 cfg,
-                q_nb,
-                30.0,
-                v_air_n,
-                &Matrix3::zeros(),
-                2000.0,
-                5.0,
-                &nalgebra::Matrix2::identity(),
-                dt_s,
-                1,
-                1.0,
+                &air_inputs(q_nb, 30.0, *v_air_n),
+                SubSteps {
+                    dt_s,
+                    n: 1,
+                    q_scale: 1.0,
+                },
             );
         }
     }
@@ -1492,16 +1547,13 @@ mod tests {
         for _ in 0..1500 {
             est.step(
                 0.1,
-                &q_north,
-                30.0,
-                2000.0,
-                1.0,
-                2100.0,
-                1.0,
-                5.0,
-                Vector3::zeros(),
-                Matrix3::zeros(),
-                north,
+                &air_inputs(&q_north, 30.0, north),
+                &GnssFilterState {
+                    h_m: 2100.0,
+                    var_h_m2: 1.0,
+                    v_n: north,
+                    v_cov: Matrix3::zeros(),
+                },
             );
         }
         let sigma_psi = 1f64.to_radians();

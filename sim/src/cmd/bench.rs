@@ -37,8 +37,12 @@ pub(crate) fn bench(fly: &FlyArgs) -> Result<()> {
         }
     })?;
     let wall_s = started.elapsed().as_secs_f64();
+    let navigation = match setup.navigation {
+        ianav_sim::flight::NavigationMode::Ins => "the navigation core (INS) at 100 Hz",
+        ianav_sim::flight::NavigationMode::Truth => "navigation on the truth",
+    };
     println!(
-        "scenario {} seed {}: {:.0} s simulated ({} steps at 500 Hz, physics + environment + sensors + control)",
+        "scenario {} seed {}: {:.0} s simulated ({} steps at 500 Hz: physics, environment, sensors, control; {navigation})",
         fly.setup.scenario, fly.seed, simulated_s, summary.truth_steps
     );
     println!(
