@@ -404,7 +404,8 @@ def fly(args):
             write_daemon_config(dcfg, router.daemon_addr[1], os.path.abspath(args.ins_config),
                                 args)
             dlog = open(os.path.join(out, "daemon.log"), "w")
-            daemon = subprocess.Popen([args.ianav, "run", "--config", dcfg], stdout=dlog,
+            record = (["--record", os.path.join(out, "daemon.bin")] if args.record else [])
+            daemon = subprocess.Popen([args.ianav, "run", "--config", dcfg] + record, stdout=dlog,
                                       stderr=subprocess.STDOUT, start_new_session=True)
             procs.append(daemon)
             gcs.watch.append(daemon)
@@ -748,6 +749,9 @@ def main():
     ap.add_argument("--cruise-s", type=float, help="cruise before the loss (default 180)")
     ap.add_argument("--denied-s", type=float, help="time after the loss (default 600)")
     ap.add_argument("--speedup", type=float, default=5.0)
+    ap.add_argument("--record", action="store_true",
+                    help="the daemon records what it feeds its navigator (daemon.bin, "
+                         "daemon.solutions.csv; `ianav replay`, docs/REPLAY.md)")
     ap.add_argument("--instance", type=int, default=3, help="SITL -I (ports 5760 + 10 I)")
     ap.add_argument("--daemon-port", type=int, default=0)
     ap.add_argument("--imu-rate-hz", type=float, default=40.0,

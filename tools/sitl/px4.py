@@ -467,8 +467,9 @@ class Harness:
         cfg = logs / "ianav.toml"
         self.daemon_config(cfg)
         self.daemon_log = open(logs / "ianav.log", "w")
+        record = ["--record", str(logs / "daemon.bin")] if self.args.record else []
         self.daemon = subprocess.Popen(
-            [str(Path(self.args.daemon).resolve()), "run", "--config", str(cfg)],
+            [str(Path(self.args.daemon).resolve()), "run", "--config", str(cfg)] + record,
             stdout=self.daemon_log, stderr=subprocess.STDOUT, stdin=subprocess.DEVNULL,
             start_new_session=True)
 
@@ -1109,6 +1110,9 @@ def main(argv=None):
                     help="the daemon's logging.level (the default logs its wind at each fix)")
     ap.add_argument("--csv-period-s", type=float, default=0.2, help="flight.csv row period")
     ap.add_argument("--short", action="store_true", help="quick check: 60 s cruise, 120 s denied")
+    ap.add_argument("--record", action="store_true",
+                    help="the daemon records what it feeds its navigator (daemon.bin, "
+                         "daemon.solutions.csv; `ianav replay`, docs/REPLAY.md)")
     a = ap.parse_args(argv)
 
     def on_term(signum, _frame):  # stop PX4 and the daemon too (they run in their own sessions)
