@@ -142,8 +142,9 @@ impl FrameQueue {
     }
 }
 
-/// The time contract on the thread's side: frames wait until the event stream reaches their
-/// time, and go to the navigator just before the first event at or after it, in time order.
+/// The time contract on the thread's side: once the INS runs, frames wait until the event
+/// stream reaches their time, and go to the navigator just before the first event at or after
+/// it, in time order (before, they go at once: there is no pose for their time to wait for).
 /// A frame therefore never goes ahead of older IMU samples already queued; one that arrives
 /// after newer IMU samples were applied goes at once, and the navigator navigates it with the
 /// INS pose at its time or rejects it as late (`nav.frames_late`).
@@ -265,6 +266,12 @@ pub fn spawn(
                         shared.count(|c| c.frames_dropped += dropped);
                     }
                 }
+                // Before the INS runs there is no pose for a frame's time to wait for.
+                if !nav.is_initialised() {
+                    while let Some(f) = merge.pop() {
+                        feed_frame(&mut nav, &mut recorder, f);
+                    }
+                }
                 match input {
                     NavInput::FramesReady => {}
                     NavInput::Event(ev, rx_at) => {
@@ -360,6 +367,11 @@ pub fn spawn(
             while let Some(f) = merge.pop() {
                 feed_frame(&mut nav, &mut recorder, f);
             }
+            let (n, i) = (*nav.stats(), nav.ins_stats().copied());
+            shared.count(|c| {
+                c.nav = n;
+                c.ins = i;
+            });
             if let Some(r) = recorder.as_mut() {
                 r.finish(&shared);
             }
