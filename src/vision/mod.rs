@@ -5,6 +5,11 @@
 //! - [`camera`]: ideal pinhole (768 × 1024 px, f = 19 mm, 17 µm pixels), projection and
 //!   back-projection, the paper's optical-flow Jacobian, image-pyramid geometry, and the
 //!   body → camera mounting `zeta_bc` with its true-versus-estimated error model.
+//! - [`pose_opt`]: the pose optimisation of eqs. `svo_pose_optim_*` (Gauss-Newton on SE(3),
+//!   Tukey weights, outliers), open to a prior term for the IA-VNS.
+//! - [`depth_filter`]: the inverse-depth seeds of new features and their Gaussian × Beta update.
+//! - [`pyramid`]: the 5-level image pyramid (2 × 2 box average) and sub-pixel interpolation.
+//! - [`features`]: grid FAST detection with the Shi-Tomasi score, one feature per cell.
 //!
 //! Frames follow docs/ARCHITECTURE.md ("Conventions"): camera `C` has z along the optical axis (out
 //! of the lens), x along image columns (right), y along image rows (down); image coordinates
@@ -12,3 +17,7 @@
 //! `[-0.5, W - 0.5] × [-0.5, H - 0.5]`.
 
 pub mod camera;
+pub mod depth_filter;
+pub mod features;
+pub mod pose_opt;
+pub mod pyramid;
