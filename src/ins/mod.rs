@@ -49,7 +49,7 @@ use solution::assemble_solution;
 use step::run_step;
 pub use types::{
     COLD_DELTA_B_SIGMA_NT, COLD_E_ACC_SIGMA_MPS2, COLD_E_GYR_SIGMA_RPS, COLD_E_MAG_SIGMA_NT,
-    InsCovariance, InsError, InsInit, InsSolution, InsStats, SensorCounters,
+    InsCovariance, InsError, InsInit, InsSolution, InsStats, SensorCounters, cold_priors,
 };
 
 /// Largest number of propagation sub-steps of one IMU interval (bounds the work of a very
@@ -331,7 +331,7 @@ impl Ins {
         let (init_pos, init_v) = match init.valid_at_us {
             Some(t0_us) => {
                 let dt_s = (s.t_us as f64 - t0_us as f64) / US_PER_S;
-                let a_n = init.q_nb * (s.accel_mps2 - init.e_acc_mps2)
+                let a_n = init.q_nb * (s.accel_mps2 - init.priors.e_acc_mps2)
                     + wgs84::gravity_ned_mps2(&init.pos);
                 let v_mid = init.v_ned_mps + a_n * (dt_s / 2.0);
                 let rates = wgs84::geodetic_rates(&init.pos, &v_mid);
@@ -350,13 +350,13 @@ impl Ins {
             &cfg.attitude,
             &AttitudeInit {
                 q_nb: init.q_nb,
-                w_nb_b: s.gyro_rps - init.e_gyr_rps - init.q_nb.inverse() * w_in_n,
-                e_gyr: init.e_gyr_rps,
-                e_gyr_sigma: init.e_gyr_sigma_rps,
-                e_mag: init.e_mag_nt,
-                e_mag_sigma: init.e_mag_sigma_nt,
-                delta_b_n: init.delta_b_n_nt,
-                delta_b_n_sigma: init.delta_b_n_sigma_nt,
+                w_nb_b: s.gyro_rps - init.priors.e_gyr_rps - init.q_nb.inverse() * w_in_n,
+                e_gyr: init.priors.e_gyr_rps,
+                e_gyr_sigma: init.priors.e_gyr_sigma_rps,
+                e_mag: init.priors.e_mag_nt,
+                e_mag_sigma: init.priors.e_mag_sigma_nt,
+                delta_b_n: init.priors.delta_b_n_nt,
+                delta_b_n_sigma: init.priors.delta_b_n_sigma_nt,
             },
             ReferenceErrorModel {
                 var_rad2: Vector3::from(cfg.alignment.ref_error_sigma_deg.map(f64::to_radians))
@@ -369,9 +369,9 @@ impl Ins {
             &PositionInit {
                 pos: init_pos,
                 v_n: init_v,
-                f_b: s.accel_mps2 - init.e_acc_mps2,
-                e_acc: init.e_acc_mps2,
-                e_acc_sigma: init.e_acc_sigma_mps2,
+                f_b: s.accel_mps2 - init.priors.e_acc_mps2,
+                e_acc: init.priors.e_acc_mps2,
+                e_acc_sigma: init.priors.e_acc_sigma_mps2,
             },
         );
         let (v_air, v_air_cov) = position::air_velocity_n(

@@ -318,10 +318,10 @@ impl Synth {
             (v + v.component_mul(&n) * frac, v.abs() * frac)
         };
         let e = self.errors;
-        (init.e_gyr_rps, init.e_gyr_sigma_rps) = rel(self, e.e_gyr, 0.01);
-        (init.e_acc_mps2, init.e_acc_sigma_mps2) = rel(self, e.e_acc, 0.01);
-        (init.e_mag_nt, init.e_mag_sigma_nt) = rel(self, e.e_mag, 0.01);
-        (init.delta_b_n_nt, init.delta_b_n_sigma_nt) = rel(self, e.delta_b_n, 0.1);
+        (init.priors.e_gyr_rps, init.priors.e_gyr_sigma_rps) = rel(self, e.e_gyr, 0.01);
+        (init.priors.e_acc_mps2, init.priors.e_acc_sigma_mps2) = rel(self, e.e_acc, 0.01);
+        (init.priors.e_mag_nt, init.priors.e_mag_sigma_nt) = rel(self, e.e_mag, 0.01);
+        (init.priors.delta_b_n_nt, init.priors.delta_b_n_sigma_nt) = rel(self, e.delta_b_n, 0.1);
         let d = self.noise3(1.0);
         init.pos.h_m -= GNSS_VER * d.z;
         init.v_ned_mps += self.noise3(GNSS_VEL);
@@ -474,8 +474,8 @@ fn static_alignment(seed: u64) {
     let mut synth = Synth::new(m, 100.0, seed);
     synth.vanes = false;
     let mut init = synth.init();
-    init.e_gyr_rps = Vector3::zeros();
-    init.e_gyr_sigma_rps = Vector3::repeat(COLD_E_GYR_SIGMA_RPS);
+    init.priors.e_gyr_rps = Vector3::zeros();
+    init.priors.e_gyr_sigma_rps = Vector3::repeat(COLD_E_GYR_SIGMA_RPS);
     let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
     let mut last = None;
     run(&mut synth, &mut ins, 300.0, |_, tr, sol| {
@@ -1142,7 +1142,7 @@ fn construction_errors_and_waiting_for_air_data() {
         Err(InsError::Init { field: "pos", .. })
     ));
     let mut bad = init;
-    bad.e_gyr_sigma_rps.x = -1.0;
+    bad.priors.e_gyr_sigma_rps.x = -1.0;
     assert!(matches!(Ins::new(&cfg, &bad), Err(InsError::Init { .. })));
     let mut bad = init;
     bad.mag_decimal_year = 2020.0;
@@ -1520,7 +1520,7 @@ fn a_start_from_an_older_fix_is_carried_to_the_first_imu_sample() {
         synth.noise = false;
         let tr = synth.truth();
         let mut init = InsInit::new(tr.q_nb, tr.pos, tr.v_n, YEAR);
-        init.e_acc_mps2 = synth.errors.e_acc;
+        init.priors.e_acc_mps2 = synth.errors.e_acc;
         init.valid_at_us = dated.then_some(tr.t_us);
         let mut ins = Ins::new(&InsConfig::default(), &init).unwrap();
         while synth.t_us < age_us {

@@ -8,6 +8,7 @@ use serde::{Deserialize, Serialize};
 use super::config::InsConfigError;
 use crate::env::magnetic::MagneticError;
 use crate::math::wgs84::Geodetic;
+use crate::sensors::SensorErrorPriors;
 
 /// Cold-start σ of the gyro error per axis, rad/s (the "base" gyro bias offset, 0.2 °/s).
 pub const COLD_E_GYR_SIGMA_RPS: f64 = 3.490_658_503_988_659e-3;
@@ -48,22 +49,8 @@ pub struct InsInit {
     pub pos: Geodetic,
     /// Initial NED ground velocity, m/s.
     pub v_ned_mps: Vector3<f64>,
-    /// Initial gyro error estimate `E_gyr`, rad/s.
-    pub e_gyr_rps: Vector3<f64>,
-    /// σ of the gyro error estimate per axis, rad/s.
-    pub e_gyr_sigma_rps: Vector3<f64>,
-    /// Initial accelerometer error estimate `E_acc`, m/s².
-    pub e_acc_mps2: Vector3<f64>,
-    /// σ of the accelerometer error estimate per axis, m/s².
-    pub e_acc_sigma_mps2: Vector3<f64>,
-    /// Initial magnetometer error estimate `E_mag`, nT.
-    pub e_mag_nt: Vector3<f64>,
-    /// σ of the magnetometer error estimate per axis, nT.
-    pub e_mag_sigma_nt: Vector3<f64>,
-    /// Initial magnetic-model error estimate `ΔB_n = B_model − B_true`, NED, nT.
-    pub delta_b_n_nt: Vector3<f64>,
-    /// σ of the magnetic-model error estimate per axis, nT.
-    pub delta_b_n_sigma_nt: Vector3<f64>,
+    /// Initial sensor-error estimates and their σ.
+    pub priors: SensorErrorPriors,
     /// Angle of attack assumed while no AoA vane reading exists, rad.
     pub aoa_rad: f64,
     /// Epoch of the World Magnetic Model, decimal year (within WMM2025's validity).
@@ -74,8 +61,22 @@ pub struct InsInit {
     pub valid_at_us: Option<u64>,
 }
 
+/// Cold start: zero sensor-error estimates with the cold-start σ (`COLD_*`).
+pub fn cold_priors() -> SensorErrorPriors {
+    SensorErrorPriors {
+        e_gyr_rps: Vector3::zeros(),
+        e_gyr_sigma_rps: Vector3::repeat(COLD_E_GYR_SIGMA_RPS),
+        e_acc_mps2: Vector3::zeros(),
+        e_acc_sigma_mps2: Vector3::repeat(COLD_E_ACC_SIGMA_MPS2),
+        e_mag_nt: Vector3::zeros(),
+        e_mag_sigma_nt: Vector3::repeat(COLD_E_MAG_SIGMA_NT),
+        delta_b_n_nt: Vector3::zeros(),
+        delta_b_n_sigma_nt: Vector3::from(COLD_DELTA_B_SIGMA_NT),
+    }
+}
+
 impl InsInit {
-    /// Cold start: zero sensor-error estimates with the cold-start σ (`COLD_*`).
+    /// Cold start: zero sensor-error estimates with the cold-start σ ([`cold_priors`]).
     pub fn new(
         q_nb: UnitQuaternion<f64>,
         pos: Geodetic,
@@ -86,14 +87,7 @@ impl InsInit {
             q_nb,
             pos,
             v_ned_mps,
-            e_gyr_rps: Vector3::zeros(),
-            e_gyr_sigma_rps: Vector3::repeat(COLD_E_GYR_SIGMA_RPS),
-            e_acc_mps2: Vector3::zeros(),
-            e_acc_sigma_mps2: Vector3::repeat(COLD_E_ACC_SIGMA_MPS2),
-            e_mag_nt: Vector3::zeros(),
-            e_mag_sigma_nt: Vector3::repeat(COLD_E_MAG_SIGMA_NT),
-            delta_b_n_nt: Vector3::zeros(),
-            delta_b_n_sigma_nt: Vector3::from(COLD_DELTA_B_SIGMA_NT),
+            priors: cold_priors(),
             aoa_rad: 0.0,
             mag_decimal_year,
             valid_at_us: None,
@@ -114,20 +108,20 @@ impl InsInit {
         }
         for (field, v) in [
             ("v_ned_mps", &self.v_ned_mps),
-            ("e_gyr_rps", &self.e_gyr_rps),
-            ("e_acc_mps2", &self.e_acc_mps2),
-            ("e_mag_nt", &self.e_mag_nt),
-            ("delta_b_n_nt", &self.delta_b_n_nt),
+            ("e_gyr_rps", &self.priors.e_gyr_rps),
+            ("e_acc_mps2", &self.priors.e_acc_mps2),
+            ("e_mag_nt", &self.priors.e_mag_nt),
+            ("delta_b_n_nt", &self.priors.delta_b_n_nt),
         ] {
             if !finite3(v) {
                 return bad(field, "must be finite");
             }
         }
         for (field, v) in [
-            ("e_gyr_sigma_rps", &self.e_gyr_sigma_rps),
-            ("e_acc_sigma_mps2", &self.e_acc_sigma_mps2),
-            ("e_mag_sigma_nt", &self.e_mag_sigma_nt),
-            ("delta_b_n_sigma_nt", &self.delta_b_n_sigma_nt),
+            ("e_gyr_sigma_rps", &self.priors.e_gyr_sigma_rps),
+            ("e_acc_sigma_mps2", &self.priors.e_acc_sigma_mps2),
+            ("e_mag_sigma_nt", &self.priors.e_mag_sigma_nt),
+            ("delta_b_n_sigma_nt", &self.priors.delta_b_n_sigma_nt),
         ] {
             if !sigma3(v) {
                 return bad(field, "must be finite and non-negative");

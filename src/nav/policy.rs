@@ -176,10 +176,10 @@ impl StartState {
             }
             self.gnss_back = None;
             let mut init = InsInit::new(last.q_nb, fix.pos, fix.v_ned_mps, policy.mag_decimal_year);
-            init.e_gyr_rps = last.e_gyr_rps;
-            init.e_acc_mps2 = last.e_acc_mps2;
-            init.e_mag_nt = last.e_mag_nt;
-            init.delta_b_n_nt = last.delta_b_n_nt;
+            init.priors.e_gyr_rps = last.e_gyr_rps;
+            init.priors.e_acc_mps2 = last.e_acc_mps2;
+            init.priors.e_mag_nt = last.e_mag_nt;
+            init.priors.delta_b_n_nt = last.delta_b_n_nt;
             init.aoa_rad = last.aoa_rad;
             init.valid_at_us = Some(fix.t_us);
             return Some((self.record(StartKind::GnssBack, fix), init));
@@ -205,15 +205,7 @@ impl StartState {
             (Some(a), _) if near(a.t_us) => {
                 let mut init =
                     InsInit::new(a.q_nb, fix.pos, fix.v_ned_mps, policy.mag_decimal_year);
-                let p = &a.priors;
-                init.e_gyr_rps = p.e_gyr_rps;
-                init.e_gyr_sigma_rps = p.e_gyr_sigma_rps;
-                init.e_acc_mps2 = p.e_acc_mps2;
-                init.e_acc_sigma_mps2 = p.e_acc_sigma_mps2;
-                init.e_mag_nt = p.e_mag_nt;
-                init.e_mag_sigma_nt = p.e_mag_sigma_nt;
-                init.delta_b_n_nt = p.delta_b_n_nt;
-                init.delta_b_n_sigma_nt = p.delta_b_n_sigma_nt;
+                init.priors = a.priors;
                 init.aoa_rad = a.aoa_rad;
                 init
             }
@@ -383,7 +375,11 @@ mod tests {
         assert!((init.q_nb.euler_angles().2 - 0.2).abs() < 1e-12);
         assert_eq!(init.aoa_rad, 0.07);
         assert_eq!(
-            (init.e_gyr_rps, init.e_acc_sigma_mps2, init.delta_b_n_nt),
+            (
+                init.priors.e_gyr_rps,
+                init.priors.e_acc_sigma_mps2,
+                init.priors.delta_b_n_nt
+            ),
             (
                 priors.e_gyr_rps,
                 priors.e_acc_sigma_mps2,
@@ -455,7 +451,10 @@ mod tests {
         assert_eq!(made.len(), 1);
         let (kind, t_us, init) = &made[0];
         assert_eq!((*kind, *t_us), (StartKind::GnssBack, 109_000_000));
-        assert_eq!((init.q_nb, init.e_gyr_rps), (last.q_nb, last.e_gyr_rps));
+        assert_eq!(
+            (init.q_nb, init.priors.e_gyr_rps),
+            (last.q_nb, last.e_gyr_rps)
+        );
         // Not denied: fixes do nothing.
         let running = Some(Running {
             gnss_denied: false,
