@@ -10,6 +10,8 @@
 //! - [`depth_filter`]: the inverse-depth seeds of new features and their Gaussian × Beta update.
 //! - [`pyramid`]: the 5-level image pyramid (2 × 2 box average) and sub-pixel interpolation.
 //! - [`features`]: grid FAST detection with the Shi-Tomasi score, one feature per cell.
+//! - [`homography`]: the two-view initialisation: homography by RANSAC, its decomposition, the
+//!   metric scale from the height over the terrain, triangulation.
 //!
 //! Frames follow docs/ARCHITECTURE.md ("Conventions"): camera `C` has z along the optical axis (out
 //! of the lens), x along image columns (right), y along image rows (down); image coordinates
@@ -19,5 +21,6 @@
 pub mod camera;
 pub mod depth_filter;
 pub mod features;
+pub mod homography;
 pub mod pose_opt;
 pub mod pyramid;
