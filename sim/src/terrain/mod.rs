@@ -170,6 +170,8 @@ pub struct Terrain {
     markers: Vec<MarkerXy>,
     heights: TileCache<HeightTile>,
     albedo: TileCache<AlbedoTile>,
+    /// The renderer's albedo atlases of the last frame.
+    atlases: render::AtlasCache,
 }
 
 impl Terrain {
@@ -193,6 +195,7 @@ impl Terrain {
             markers: Vec::new(),
             heights: TileCache::new(height_bytes, HeightTile::BYTES),
             albedo: TileCache::new(albedo_bytes, AlbedoTile::BYTES),
+            atlases: render::AtlasCache::default(),
         }
     }
 

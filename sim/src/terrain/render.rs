@@ -32,17 +32,19 @@
 //!   nearest levels, bilinear within each), so moving frames do not shimmer. A coarse pass
 //!   (every 16 px) finds the levels and ground in view so that the albedo tiles are fetched
 //!   before the main pass; a pixel that would still fall outside them is evaluated exactly.
+//!   Each level's tiles are copied side by side into one atlas, kept for the next frame
+//!   ([`AtlasCache`]), which usually sees the same tiles.
 
 use ianav::math::wgs84;
 use ianav::vision::camera::Camera;
 use nalgebra::{Isometry3, Matrix3, UnitQuaternion, Vector3};
 use rayon::prelude::*;
-use std::sync::Arc;
+use std::sync::{Arc, Mutex};
 
 use super::Terrain;
 use super::tiles::{
     ALBEDO_STRIDE, ALBEDO_TILE, AlbedoTile, HEIGHT_SPACING_M, HEIGHT_STRIDE, HEIGHT_TILE,
-    HeightTile, MAX_LEVEL, TileKey,
+    MAX_LEVEL, TileKey,
 };
 
 /// Rays that meet no terrain within this range are sky, m.
@@ -266,7 +268,8 @@ impl LocalMap {
 /// The height field of one frame: its tiles in a dense table.
 struct HeightTable<'a> {
     terrain: &'a Terrain,
-    tiles: Vec<Arc<HeightTile>>,
+    /// The tiles' samples (slices of the frame's `Arc`s: one dependent load less per look-up).
+    tiles: Vec<&'a [f32]>,
     ntx: i64,
     nty: i64,
     /// Lattice coordinates of the camera relative to the table origin.
@@ -295,11 +298,10 @@ impl HeightTable<'_> {
         if tx < 0 || ty < 0 || tx >= self.ntx || ty >= self.nty {
             return slow_height_grad(self.terrain, self.xc + x, self.yc + y);
         }
-        let tile = &self.tiles[(ty * self.ntx + tx) as usize];
+        let h = self.tiles[(ty * self.ntx + tx) as usize];
         let lx = (ix - tx * HEIGHT_TILE as i64) as usize;
         let ly = (iy - ty * HEIGHT_TILE as i64) as usize;
         let k = ly * HEIGHT_STRIDE + lx;
-        let h = &tile.h_m;
         super::bilinear_grad(
             h[k],
             h[k + 1],
@@ -311,68 +313,154 @@ impl HeightTable<'_> {
     }
 }
 
+/// Atlas of one level over a block of tiles: level, first tile (x, y), tiles along x and y.
+type AtlasKey = (u32, i64, i64, i64, i64);
+
+/// The atlases of the last frame rendered over a terrain, one per mip level: consecutive
+/// 10 Hz frames mostly see the same tiles, so their atlases are shared rather than copied
+/// again (a few MB per frame). An atlas is a pure function of its key: reuse changes no pixel.
+#[derive(Default)]
+pub struct AtlasCache(Mutex<Vec<(AtlasKey, Arc<Vec<u8>>)>>);
+
+impl std::fmt::Debug for AtlasCache {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.debug_struct("AtlasCache").finish_non_exhaustive()
+    }
+}
+
+impl AtlasCache {
+    fn lock(&self) -> std::sync::MutexGuard<'_, Vec<(AtlasKey, Arc<Vec<u8>>)>> {
+        // Every update is a single push or replacement: a poisoned lock is still consistent.
+        self.0.lock().unwrap_or_else(|p| p.into_inner())
+    }
+
+    fn get(&self, key: AtlasKey) -> Option<Arc<Vec<u8>>> {
+        let g = self.lock();
+        g.iter()
+            .find(|(k, _)| *k == key)
+            .map(|(_, d)| Arc::clone(d))
+    }
+
+    /// Keep `data` as the atlas of its level (replacing the level's previous one).
+    fn put(&self, key: AtlasKey, data: Arc<Vec<u8>>) {
+        let mut g = self.lock();
+        match g.iter_mut().find(|(k, _)| k.0 == key.0) {
+            Some(e) => *e = (key, data),
+            None => g.push((key, data)),
+        }
+    }
+}
+
 /// The albedo of one mip level over the frame's ground: its tiles copied side by side into
 /// one raster (an atlas), so that a sample is one index computation and four loads (the copy,
 /// a few MB per frame, costs far less than the per-sample tile look-ups it saves).
 struct AlbedoLevel {
-    data: Vec<u8>,
+    data: Arc<Vec<u8>>,
     /// Samples per atlas row and number of rows (tiles × 256 + 1).
     stride: usize,
     width: i64,
     height: i64,
-    /// Texel coordinates of the camera relative to the atlas origin, and texels per metre.
-    ox: f64,
-    oy: f64,
-    scale: f64,
+    /// Fixed-point texel coordinates of the camera relative to the atlas origin, and
+    /// fixed-point texels per metre: `2¹⁶ ×` the texel figures. Both factors are powers of
+    /// two, so `x·s + o` rounds exactly as `(x·scale + ox)·2¹⁶` did: same samples, one
+    /// multiplication less per coordinate.
+    fox: f64,
+    foy: f64,
+    fscale: f64,
 }
 
 impl AlbedoLevel {
-    fn new(tiles: &[Arc<AlbedoTile>], ntx: i64, nty: i64, ox: f64, oy: f64, scale: f64) -> Self {
-        let n = ALBEDO_TILE;
-        let stride = ntx as usize * n + 1;
-        let rows = nty as usize * n + 1;
-        let mut data = vec![0_u8; stride * rows];
-        for ty in 0..nty as usize {
-            for tx in 0..ntx as usize {
-                let tile = &tiles[ty * ntx as usize + tx];
-                // Each tile holds 257 × 257 samples; neighbours share their edge samples.
-                for r in 0..=n {
-                    let dst = (ty * n + r) * stride + tx * n;
-                    data[dst..dst + n + 1]
-                        .copy_from_slice(&tile.a[r * ALBEDO_STRIDE..r * ALBEDO_STRIDE + n + 1]);
-                }
-            }
-        }
+    fn new(data: Arc<Vec<u8>>, ntx: i64, nty: i64, ox: f64, oy: f64, scale: f64) -> Self {
+        let stride = ntx as usize * ALBEDO_TILE + 1;
+        let rows = nty as usize * ALBEDO_TILE + 1;
         Self {
             data,
             stride,
             width: stride as i64,
             height: rows as i64,
-            ox,
-            oy,
-            scale,
+            fox: ox * FIX_ONE,
+            foy: oy * FIX_ONE,
+            fscale: scale * FIX_ONE,
         }
     }
 
-    /// Bilinear sample at texture offsets `(x, y)`; `None` outside the frame's tiles.
+    /// The atlas of `ntx × nty` tiles (row after row).
+    fn build(tiles: &[Arc<AlbedoTile>], ntx: i64, nty: i64) -> Vec<u8> {
+        let n = ALBEDO_TILE;
+        let stride = ntx as usize * n + 1;
+        let rows = nty as usize * n + 1;
+        // Written once, row after row (no zeroing first). Each tile holds 257 × 257 samples;
+        // neighbours share their edge samples (equal: the same texel of the same function), so
+        // each tile gives its first 256 of a row, the last tile of a row all 257, and the last
+        // tile row its 257th row too.
+        let (ntx, nty) = (ntx as usize, nty as usize);
+        let mut data = Vec::with_capacity(stride * rows);
+        for row in 0..rows {
+            let (ty, r) = if row == rows - 1 {
+                (nty - 1, n)
+            } else {
+                (row / n, row % n)
+            };
+            for tx in 0..ntx {
+                let tile = &tiles[ty * ntx + tx];
+                let len = if tx + 1 == ntx { n + 1 } else { n };
+                data.extend_from_slice(&tile.a[r * ALBEDO_STRIDE..r * ALBEDO_STRIDE + len]);
+            }
+        }
+        data
+    }
+
+    fn view(&self) -> LevelView<'_> {
+        LevelView {
+            data: &self.data,
+            stride: self.stride,
+            width: self.width,
+            height: self.height,
+            fox: self.fox,
+            foy: self.foy,
+            fscale: self.fscale,
+        }
+    }
+}
+
+/// [`AlbedoLevel`] by value, so that the sampling loop keeps its fields in registers.
+#[derive(Clone, Copy)]
+struct LevelView<'a> {
+    data: &'a [u8],
+    stride: usize,
+    width: i64,
+    height: i64,
+    fox: f64,
+    foy: f64,
+    fscale: f64,
+}
+
+impl LevelView<'_> {
+    /// Fixed-point texel coordinates of the texture offsets `(x, y)`.
     #[inline(always)]
-    fn sample(&self, x: f64, y: f64) -> Option<f32> {
-        let gx = round_i64((x * self.scale + self.ox) * FIX_ONE);
-        let gy = round_i64((y * self.scale + self.oy) * FIX_ONE);
+    fn fixed(&self, x: f64, y: f64) -> (i64, i64) {
+        (
+            round_i64(x * self.fscale + self.fox),
+            round_i64(y * self.fscale + self.foy),
+        )
+    }
+
+    /// Bilinear sample at fixed-point texel coordinates (from [`Self::fixed`]); `None` outside
+    /// the frame's tiles.
+    #[inline(always)]
+    fn sample_fixed(&self, (gx, gy): (i64, i64)) -> Option<f32> {
         let (ix, iy) = (gx >> FIX_BITS, gy >> FIX_BITS);
         // One unsigned comparison per axis also rejects negative cells.
         if ix as u64 >= (self.width - 1) as u64 || iy as u64 >= (self.height - 1) as u64 {
             return None;
         }
         let k = iy as usize * self.stride + ix as usize;
-        let (top, bot) = (
-            self.data.get(k..k + 2)?,
-            self.data.get(k + self.stride..k + self.stride + 2)?,
-        );
+        // One bounds check for the four samples (`s` is longer than `stride + 1`).
+        let s = self.data.get(k..k + self.stride + 2)?;
         let wx = (gx & FIX_MASK) as f32 * (1.0 / FIX_ONE as f32);
         let wy = (gy & FIX_MASK) as f32 * (1.0 / FIX_ONE as f32);
-        let (a00, a10) = (f32::from(top[0]), f32::from(top[1]));
-        let (a01, a11) = (f32::from(bot[0]), f32::from(bot[1]));
+        let (a00, a10) = (f32::from(s[0]), f32::from(s[1]));
+        let (a01, a11) = (f32::from(s[self.stride]), f32::from(s[self.stride + 1]));
         let top = a00 + wx * (a10 - a00);
         let bot = a01 + wx * (a11 - a01);
         Some(top + wy * (bot - top))
@@ -389,11 +477,17 @@ struct Ray {
     h0: f64,
     ch1: f64,
     ch2: f64,
-    /// |u|.
-    norm: f64,
+    /// |u|² (the square root is taken only where needed: the fast path does without it).
+    n2: f64,
 }
 
 impl Ray {
+    /// |u|.
+    #[inline]
+    fn norm(&self) -> f64 {
+        self.n2.sqrt()
+    }
+
     #[inline]
     fn xyh(&self, t: f64) -> (f64, f64, f64) {
         (
@@ -478,7 +572,7 @@ impl RowRays {
             h0: self.h0,
             ch1: l(2),
             ch2: q(2),
-            norm: (self.n2.0 + u * (self.n2.1 + u * self.n2.2)).sqrt(),
+            n2: self.n2.0 + u * (self.n2.1 + u * self.n2.2),
         }
     }
 }
@@ -591,7 +685,7 @@ impl Renderer {
         for &v in &vs {
             for &u in &us {
                 let ray = make_ray(u, v);
-                let t_far = MAX_RANGE_M / ray.norm;
+                let t_far = MAX_RANGE_M / ray.norm();
                 let t0 = ray.cross(h_hi).unwrap_or(t_far).min(t_far);
                 let t1 = ray.cross(h_lo).unwrap_or(t_far).min(t_far);
                 for t in [t0, t1] {
@@ -638,7 +732,7 @@ impl Renderer {
         let max_slope = tiles.iter().fold(0.0_f64, |m, t| m.max(t.max_slope));
         let table = HeightTable {
             terrain,
-            tiles,
+            tiles: tiles.iter().map(|t| t.h_m.as_slice()).collect(),
             ntx,
             nty,
             ox: xc / HEIGHT_SPACING_M - (tx0 * HEIGHT_TILE as i64) as f64,
@@ -667,7 +761,7 @@ impl Renderer {
                 );
             for (u, v) in border {
                 let ray = make_ray(u, v);
-                let t_far = MAX_RANGE_M / ray.norm;
+                let t_far = MAX_RANGE_M / ray.norm();
                 match ray.cross(h_lo) {
                     Some(t_bot) if t_bot < t_far && monotone(&ray, t_bot, slope_bound, 0.05) => {}
                     _ => {
@@ -683,7 +777,7 @@ impl Renderer {
         // ground each of them covers, so the albedo tiles are fetched before the main pass.
         let t_setup = clock.elapsed().as_secs_f64();
         let n_px = (w as usize) * (h as usize);
-        let rows_per_chunk = 8;
+        let rows_per_chunk = 16;
         let camera_ground_t = {
             // Depth of the ground straight below along the optical axis, for the first
             // prediction of each chunk.
@@ -700,10 +794,15 @@ impl Renderer {
             camera_ground_t,
         };
         let lod_of = |ray: &Ray, t: f64| -> (f64, f64) {
-            // Footprint on level ground, m: t|u|/f / cos(incidence).
+            // Footprint on level ground, m: t|u|/f / cos(incidence), cos(incidence) =
+            // descent/|u| ≥ 0.05, i.e. t|u|²/(f·descent): one division and no square root
+            // unless the ray grazes the ground.
             let descent = -(ray.ch1 + 2.0 * ray.ch2 * t);
-            let cos_inc = (descent / ray.norm).max(0.05);
-            let foot_m = t * ray.norm / (f_px * cos_inc);
+            let foot_m = if descent > 0.0 && descent * descent >= 0.0025 * ray.n2 {
+                t * ray.n2 / (f_px * descent)
+            } else {
+                t * ray.norm() / (f_px * 0.05)
+            };
             (
                 fast_log2(foot_m.max(1e-3)).clamp(0.0, f64::from(MAX_LEVEL)),
                 foot_m,
@@ -809,8 +908,14 @@ impl Renderer {
         let mut albedo_tiles = terrain.albedo_tiles(&all_keys).into_iter();
         for (l, first, last, tx0, ty0, ntx, nty, scale) in spans {
             let tiles: Vec<_> = albedo_tiles.by_ref().take(last - first).collect();
+            let key = (l, tx0, ty0, ntx, nty);
+            let data = terrain.atlases.get(key).unwrap_or_else(|| {
+                let data = Arc::new(AlbedoLevel::build(&tiles, ntx, nty));
+                terrain.atlases.put(key, Arc::clone(&data));
+                data
+            });
             levels[l as usize] = Some(AlbedoLevel::new(
-                &tiles,
+                data,
                 ntx,
                 nty,
                 // Texel centres at (i + ½)·texel: s = x/texel − ½.
@@ -830,6 +935,17 @@ impl Renderer {
         // moves continuously with the pixel: true when every ray is monotone (no occlusion).
         let interpolate = scene.all_monotone && !self.options.exact_geometry;
 
+        let shade = Shader {
+            levels: levels
+                .iter()
+                .map(|l| l.as_ref().map(AlbedoLevel::view))
+                .collect(),
+            terrain,
+            xc,
+            yc,
+            gain,
+            sky: f32::from(opts.sky_grey),
+        };
         let mut pixels = vec![0_u8; n_px];
         let stats: Vec<RenderStats> = pixels
             .par_chunks_mut(wu * rows_per_chunk)
@@ -854,71 +970,60 @@ impl Renderer {
                             geom.solve_row(blk, r, v0 + r, 1, 1, &mut st);
                         }
                     }
-                    for (r, row) in rows.chunks_mut(wu).enumerate() {
-                        let v = (v0 + r) as f64;
-                        let rays = row_rays(v);
-                        let (row_t, row_x, row_y) = blk.row(r);
-                        // Shading. The footprint varies slowly along a row: its mip levels and
-                        // blend are recomputed every 4 pixels.
-                        let mut lod_valid = false;
-                        let (mut l0, mut frac) = (0_u32, 0.0_f32);
-                        let (mut lv0, mut lv1): (Option<&AlbedoLevel>, Option<&AlbedoLevel>) =
-                            (None, None);
-                        for (col, out) in row.iter_mut().enumerate() {
-                            let t = row_t[col];
-                            let value = if t.is_nan() {
-                                lod_valid = false;
-                                st.sky += 1;
-                                f32::from(opts.sky_grey)
+                    let ng = wu.div_ceil(4);
+                    // The footprint varies slowly along a row: its mip levels and blend are
+                    // recomputed every 4 pixels. Those levels of detail are computed first, in
+                    // a loop of independent iterations, so that their square root and
+                    // divisions overlap instead of stalling the sampling loop.
+                    let mut lods = std::mem::take(&mut blk.lod);
+                    lods.clear();
+                    for r in 0..n_rows {
+                        let rays = row_rays((v0 + r) as f64);
+                        lods.extend(blk.row(r).0.iter().step_by(4).enumerate().map(|(g, &t)| {
+                            if t.is_nan() {
+                                f64::NAN
                             } else {
-                                let (x, y) = (row_x[col], row_y[col]);
-                                if col % 4 == 0 || !lod_valid {
-                                    let lod = lod_of(&rays.at(col as f64), t).0;
-                                    l0 = lod as u32;
-                                    frac = (lod - f64::from(l0)) as f32;
-                                    if frac <= 1e-4 || l0 >= MAX_LEVEL {
-                                        frac = 0.0;
-                                    }
-                                    lv0 = levels[l0 as usize].as_ref();
-                                    lv1 =
-                                        levels[(l0 as usize + 1).min(MAX_LEVEL as usize)].as_ref();
-                                    lod_valid = true;
-                                }
-                                st.hits += 1;
-                                let a0 = match lv0.and_then(|lv| lv.sample(x, y)) {
-                                    Some(a) => a,
-                                    None => {
-                                        // Outside the tiles fetched for the frame: exact.
-                                        st.exact_albedo += 1;
-                                        slow_albedo(terrain, xc + x, yc + y, l0)
-                                    }
-                                };
-                                let a = if frac > 0.0 {
-                                    let a1 = match lv1.and_then(|lv| lv.sample(x, y)) {
-                                        Some(a) => a,
-                                        None => {
-                                            st.exact_albedo += 1;
-                                            slow_albedo(terrain, xc + x, yc + y, l0 + 1)
-                                        }
-                                    };
-                                    a0 + frac * (a1 - a0)
-                                } else {
-                                    a0
-                                };
-                                a * gain
-                            };
-                            let value = if opts.noise_sigma_grey > 0.0 {
-                                let idx = (chunk * rows_per_chunk * wu) + r * wu + col;
-                                value
-                                    + (opts.noise_sigma_grey as f32)
-                                        * approx_normal(opts.noise_seed, idx as i64)
-                            } else {
-                                value
-                            };
-                            // Round half up; `f32::round` is a libm call on baseline x86-64.
-                            *out = (value.clamp(0.0, 255.0) + 0.5) as u8;
+                                lod_of(&rays.at((4 * g) as f64), t).0
+                            }
+                        }));
+                    }
+                    let mut vals = std::mem::take(&mut blk.vals);
+                    vals.clear();
+                    vals.resize(wu * n_rows, 0.0);
+                    // Shading in column strips across the block's rows, so that a strip's
+                    // texels can stay in the L1 cache from one row to the next even when rows
+                    // run along texture y (one cache line per texel row). Same pixels; no gain
+                    // measurable within the noise on the flights measured (docs/PERFORMANCE.md).
+                    for c0 in (0..wu).step_by(SHADE_STRIP) {
+                        let c1 = (c0 + SHADE_STRIP).min(wu);
+                        for r in 0..n_rows {
+                            let (row_t, row_x, row_y) = blk.row(r);
+                            shade.row(
+                                &mut vals[r * wu + c0..r * wu + c1],
+                                (&row_t[c0..c1], &row_x[c0..c1], &row_y[c0..c1]),
+                                &lods[r * ng + c0 / 4..(r + 1) * ng],
+                                |col, t| {
+                                    lod_of(&row_rays((v0 + r) as f64).at((c0 + col) as f64), t).0
+                                },
+                                &mut st,
+                            );
                         }
                     }
+                    // Noise and rounding in a loop of their own (vectorised without noise).
+                    if opts.noise_sigma_grey > 0.0 {
+                        let sigma = opts.noise_sigma_grey as f32;
+                        let base = chunk * rows_per_chunk * wu;
+                        for (k, (out, v)) in rows.iter_mut().zip(&vals).enumerate() {
+                            let n = approx_normal(opts.noise_seed, (base + k) as i64);
+                            *out = to_grey(v + sigma * n);
+                        }
+                    } else {
+                        for (out, v) in rows.iter_mut().zip(&vals) {
+                            *out = to_grey(*v);
+                        }
+                    }
+                    blk.vals = vals;
+                    blk.lod = lods;
                     st
                 },
             )
@@ -946,6 +1051,112 @@ impl Renderer {
             },
             total,
         ))
+    }
+}
+
+/// Columns per strip of the shading (a multiple of 4: strips start new level-of-detail groups).
+const SHADE_STRIP: usize = 64;
+
+/// Round half up to a grey level (`f32::round` is a libm call on baseline x86-64).
+#[inline(always)]
+fn to_grey(v: f32) -> u8 {
+    (v.clamp(0.0, 255.0) + 0.5) as u8
+}
+
+/// Albedo sampling of the main pass: the frame's atlases and photometric constants.
+struct Shader<'a> {
+    levels: Vec<Option<LevelView<'a>>>,
+    terrain: &'a Terrain,
+    xc: f64,
+    yc: f64,
+    gain: f32,
+    sky: f32,
+}
+
+impl Shader<'_> {
+    /// Grey levels (before noise and rounding) of one row from its ground points `(t, x, y)`:
+    /// sky where `t` is NaN, else the trilinear albedo times the gain. Pixels are shaded in
+    /// groups sharing their mip levels and blend, which start at every 4th column (level of
+    /// detail `lods[col / 4]`) and at the first ground pixel after sky (`lod_at(col, t)`).
+    #[inline(always)]
+    fn row(
+        &self,
+        out: &mut [f32],
+        (t, x, y): (&[f64], &[f64], &[f64]),
+        lods: &[f64],
+        lod_at: impl Fn(usize, f64) -> f64,
+        st: &mut RenderStats,
+    ) {
+        let n = out.len().min(t.len()).min(x.len()).min(y.len());
+        let mut col = 0;
+        while col < n {
+            if t[col].is_nan() {
+                out[col] = self.sky;
+                st.sky += 1;
+                col += 1;
+                continue;
+            }
+            let lod = if col % 4 == 0 {
+                lods[col / 4]
+            } else {
+                lod_at(col, t[col])
+            };
+            let l0 = lod as u32;
+            let mut frac = (lod - f64::from(l0)) as f32;
+            if frac <= 1e-4 || l0 >= MAX_LEVEL {
+                frac = 0.0;
+            }
+            let lv0 = self.levels[l0 as usize];
+            let lv1 = self.levels[(l0 as usize + 1).min(MAX_LEVEL as usize)];
+            let end = ((col / 4 + 1) * 4).min(n);
+            // The group's ground pixels (sky ends the group: the outer loop shades it and
+            // starts the next group).
+            let mut k = 0;
+            while k < end - col && !t[col + k].is_nan() {
+                k += 1;
+            }
+            // Texel coordinates of the whole group first, then its samples: the loads of up to
+            // eight samples are issued together instead of each waiting for its own chain of
+            // coordinate arithmetic.
+            let mut g0 = [(0_i64, 0_i64); 4];
+            let mut g1 = [(0_i64, 0_i64); 4];
+            if let Some(lv) = lv0 {
+                for i in 0..k {
+                    g0[i] = lv.fixed(x[col + i], y[col + i]);
+                }
+            }
+            if let Some(lv) = lv1.filter(|_| frac > 0.0) {
+                for i in 0..k {
+                    g1[i] = lv.fixed(x[col + i], y[col + i]);
+                }
+            }
+            for i in 0..k {
+                let (px, py) = (x[col + i], y[col + i]);
+                let a0 = match lv0.and_then(|lv| lv.sample_fixed(g0[i])) {
+                    Some(a) => a,
+                    None => {
+                        // Outside the tiles fetched for the frame: exact.
+                        st.exact_albedo += 1;
+                        slow_albedo(self.terrain, self.xc + px, self.yc + py, l0)
+                    }
+                };
+                let a = if frac > 0.0 {
+                    let a1 = match lv1.and_then(|lv| lv.sample_fixed(g1[i])) {
+                        Some(a) => a,
+                        None => {
+                            st.exact_albedo += 1;
+                            slow_albedo(self.terrain, self.xc + px, self.yc + py, l0 + 1)
+                        }
+                    };
+                    a0 + frac * (a1 - a0)
+                } else {
+                    a0
+                };
+                out[col + i] = a * self.gain;
+            }
+            st.hits += k as u64;
+            col += k;
+        }
     }
 }
 
@@ -1001,6 +1212,10 @@ struct GroundBlock {
     x: Vec<f64>,
     y: Vec<f64>,
     wu: usize,
+    /// Level of detail of one row at every 4th column (NaN for sky).
+    lod: Vec<f64>,
+    /// Grey levels of one row before noise and rounding.
+    vals: Vec<f32>,
 }
 
 impl GroundBlock {
@@ -1010,6 +1225,8 @@ impl GroundBlock {
             x: vec![0.0; wu * rows],
             y: vec![0.0; wu * rows],
             wu,
+            lod: Vec::with_capacity(wu.div_ceil(4)),
+            vals: Vec::with_capacity(wu),
         }
     }
 
@@ -1236,12 +1453,14 @@ fn intersect(
     let mut start = None;
     if sc.all_monotone {
         // Fast path: one look-up at the predicted depth, one Newton step.
-        if let Some(t0) = guess.filter(|t| *t > 0.0 && *t * ray.norm < MAX_RANGE_M) {
+        // Range checks on squares: no square root on the fast path.
+        let in_range = |t: f64| t > 0.0 && t * t * ray.n2 < MAX_RANGE_M * MAX_RANGE_M;
+        if let Some(t0) = guess.filter(|t| in_range(*t)) {
             let (f0, d0, x0, y0) = eval(ray, sc.table, t0, &mut lookups);
             if d0 < 0.0 && f0.is_finite() {
                 let dt = -f0 / d0;
                 let t1 = t0 + dt;
-                if f0.abs() < NEWTON_ACCEPT_M && t1 > 0.0 && t1 * ray.norm < MAX_RANGE_M {
+                if f0.abs() < NEWTON_ACCEPT_M && in_range(t1) {
                     st.height_lookups += lookups;
                     // The point moves along the ray's tangent; the curvature term
                     // `c₂ δt²` of a centimetre-sized step is far below a micrometre.
@@ -1269,7 +1488,7 @@ fn intersect_slow(
     lookups: &mut u64,
     st: &mut RenderStats,
 ) -> Option<(f64, f64, f64)> {
-    let t_far = MAX_RANGE_M / ray.norm;
+    let t_far = MAX_RANGE_M / ray.norm();
     let t_top = ray.cross(sc.h_hi)?;
     if t_top >= t_far {
         return None;
@@ -1359,7 +1578,7 @@ fn march(
         + slope_bound * (hor1 + 2.0 * hor2 * t_end)
         + 1e-9;
     // Smallest step: 5 cm along the ray.
-    let min_step = 0.05 / ray.norm;
+    let min_step = 0.05 / ray.norm();
     let mut t = t_top;
     let (mut fv, _, x, y) = eval(ray, table, t, lookups);
     if !fv.is_finite() {
@@ -1425,7 +1644,7 @@ mod tests {
             h0: 1000.0,
             ch1: -1.0,
             ch2: 1e-7,
-            norm: 1.0,
+            n2: 1.0,
         };
         let t = ray.cross(200.0).unwrap();
         assert!((ray.xyh(t).2 - 200.0).abs() < 1e-9);
