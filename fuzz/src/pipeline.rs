@@ -552,11 +552,11 @@ impl Pipeline {
                 Some(StartKind::GnssBack) => self.stats.reinits += 1,
                 _ => self.stats.inits += 1,
             }
+            // One event starts the INS at most once.
             ensure!(
-                self.nav.stats().initialisations == self.stats.inits + self.stats.reinits,
-                "navigator initialisations miscounted: {} counted, {} starts seen",
-                self.nav.stats().initialisations,
-                self.stats.inits + self.stats.reinits
+                self.nav.stats().initialisations == inits_before + 1,
+                "navigator initialisations jumped from {inits_before} to {} on one event",
+                self.nav.stats().initialisations
             );
             let [air, mag, ref_attitude] = self.since_imu;
             self.ledger = InsLedger {
