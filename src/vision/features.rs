@@ -5,11 +5,16 @@
 //! track" score, and at most one feature per cell of a grid over the level-0 image, the best
 //! over all levels; cells that already hold a tracked feature are skipped.
 //!
-//! - FAST-9 (segment test on the radius-3 circle of 16 pixels, 9 contiguous) from `imageproc`.
-//!   Its threshold is a difference in grey levels (0–255) that the circle pixels must exceed
-//!   strictly, the same unit as OpenCV's and SVO's; SVO uses 20. `imageproc` has no non-maximum
-//!   suppression, so it is done here on the FAST score over 3 × 3 neighbours. Ties (common on
-//!   synthetic images) keep the first pixel in row-major order, so a plateau keeps one corner.
+//! - FAST-9: segment test on the radius-3 circle of 16 pixels, 9 contiguous all brighter or all
+//!   darker. Its threshold is a difference in grey levels (0–255) that the circle pixels must
+//!   exceed strictly, the same unit as OpenCV's and SVO's; SVO uses 20. Non-maximum suppression
+//!   over 3 × 3 neighbours on the FAST score, the largest threshold at which the pixel is still
+//!   a corner (`imageproc`'s score). Ties (common on synthetic images) keep the first pixel in
+//!   row-major order, so a plateau keeps one corner. The test and the score are computed here,
+//!   16 pixels at a time, and only where the result depends on them (pixels of free cells
+//!   inside the border, and their neighbours); the corners and scores are exactly those of
+//!   `imageproc::corners::corners_fast9`, which the tests use as the oracle (it scores every
+//!   corner of the image by a binary search on the threshold: 30–50 ms per 768 × 1024 frame).
 //! - Shi-Tomasi score: the smaller eigenvalue of the mean structure tensor `⟨∇I ∇Iᵀ⟩` over the
 //!   8 × 8 window `[x − 4, x + 4) × [y − 4, y + 4)` of the detection level, with central
 //!   differences `(I(x+1) − I(x−1)) / 2`. Scores are compared across levels at level-0 scale:
@@ -33,7 +38,6 @@
 //!   one-pixel margin after small warps).
 
 use image::GrayImage;
-use imageproc::corners::corners_fast9;
 use nalgebra::Vector2;
 use serde::{Deserialize, Serialize};
 
@@ -365,20 +369,25 @@ impl FeatureDetector {
             });
         }
         let mut best: Vec<Option<Feature>> = vec![None; self.grid.n_cells()];
-        let mut fast_scores = Vec::new();
+        let mut scratch = Scratch::default();
         for (level, img) in (0..self.config.n_levels).zip(pyramid.levels()) {
-            self.detect_level(level, img, occupancy, &mut fast_scores, &mut best);
+            self.detect_level(level, img, occupancy, &mut scratch, &mut best);
         }
         Ok(best.into_iter().flatten().collect())
     }
 
-    /// One level's corners into `best`; `fast_scores` is scratch space for the suppression.
+    /// One level's corners into `best`.
+    ///
+    /// Rows are scanned top to bottom with the FAST scores of three rows kept: the scores of
+    /// row `y + 1` are computed, then the corners of row `y` are suppressed against rows
+    /// `y − 1` to `y + 1`. Only the pixels the result depends on are tested: the corner
+    /// candidates of free cells inside the border, and their 8 neighbours.
     fn detect_level(
         &self,
         level: u32,
         img: &GrayImage,
         occupancy: &Occupancy,
-        fast_scores: &mut Vec<u8>,
+        scratch: &mut Scratch,
         best: &mut [Option<Feature>],
     ) {
         let (w, h) = img.dimensions();
@@ -386,53 +395,376 @@ impl FeatureDetector {
         if w <= 2 * border || h <= 2 * border {
             return;
         }
-        let corners = corners_fast9(img, self.config.fast_threshold);
-        // FAST scores as an image (0 = no corner) for the 3 × 3 suppression.
-        fast_scores.clear();
-        fast_scores.resize(w as usize * h as usize, 0);
-        for c in &corners {
-            // imageproc's score is a u8 threshold stored as f32.
-            fast_scores[c.y as usize * w as usize + c.x as usize] = c.score as u8;
-        }
+        let (w, h, b) = (w as usize, h as usize, border as usize);
+        let cols = self.grid.cols as usize;
+        let threshold = self.config.fast_threshold;
+        let pixels = img.as_raw();
+        scratch.prepare(&self.grid, level, w, h, b);
+        let Scratch {
+            scores,
+            col_span,
+            col_cell,
+            row_cell,
+            spans,
+        } = scratch;
+        let free = |r: usize, c: usize| !occupancy.occupied[r * cols + c];
+        // FAST scores of row `y` (0 = no corner) into its slot of `scores`, over the columns
+        // of the cells that hold a candidate on rows `y − 1` to `y + 1`, widened by one pixel.
+        let score_row = |y: usize, scores: &mut [u8], spans: &mut Vec<(usize, usize)>| {
+            spans.clear();
+            let cell_rows = &row_cell[y - 1..=y + 1];
+            for (c, span) in col_span.iter().enumerate() {
+                let Some((x0, x1)) = *span else { continue };
+                if !cell_rows.iter().flatten().any(|&r| free(r, c)) {
+                    continue;
+                }
+                let (x0, x1) = (x0 - 1, x1 + 1);
+                match spans.last_mut() {
+                    Some(last) if last.1 >= x0 => last.1 = last.1.max(x1),
+                    _ => spans.push((x0, x1)),
+                }
+            }
+            if spans.is_empty() {
+                return;
+            }
+            let rows: [&[u8]; 7] = std::array::from_fn(|i| &pixels[(y + i - 3) * w..][..w]);
+            let out = &mut scores[(y % 3) * w..][..w];
+            for &(x0, x1) in spans.iter() {
+                fast9_span(&rows, x0, x1, threshold, out);
+            }
+        };
+        score_row(b - 1, scores, spans);
+        score_row(b, scores, spans);
         let to_level_0 = 0.25_f32.powi(level as i32);
-        for c in &corners {
-            if c.x < border || c.y < border || c.x >= w - border || c.y >= h - border {
-                continue;
-            }
-            if !is_local_max(fast_scores, w as usize, c.x as usize, c.y as usize) {
-                continue;
-            }
-            let px = Camera::level_to_base(&Vector2::new(f64::from(c.x), f64::from(c.y)), level);
-            let Some(cell) = self.grid.cell_of(&px) else {
-                continue;
+        // A corner that survived the suppression: its Shi-Tomasi score against its cell's best.
+        let mut consider = |x: usize, y: usize, r: usize| {
+            let Some(c) = col_cell[x] else {
+                return;
             };
-            if occupancy.is_occupied(cell) {
-                continue;
-            }
-            let Some(score) = shi_tomasi_score(img, c.x, c.y) else {
-                continue;
+            let (x, y) = (x as u32, y as u32);
+            let Some(score) = shi_tomasi_score(img, x, y) else {
+                return;
             };
             let score = score * to_level_0;
             if score <= self.config.min_shi_tomasi_score {
-                continue;
+                return;
             }
-            let slot = &mut best[cell];
+            let slot = &mut best[r * cols + c];
             if slot.is_none_or(|f| score > f.score) {
+                let px = Camera::level_to_base(&Vector2::new(f64::from(x), f64::from(y)), level);
                 *slot = Some(Feature { px, level, score });
+            }
+        };
+        for y in b..h - b {
+            score_row(y + 1, scores, spans);
+            let Some(r) = row_cell[y] else { continue };
+            let up = &scores[((y - 1) % 3) * w..][..w];
+            let mid = &scores[(y % 3) * w..][..w];
+            let down = &scores[((y + 1) % 3) * w..][..w];
+            // Candidate columns: the free cells of this row, adjacent ones merged.
+            spans.clear();
+            for (c, span) in col_span.iter().enumerate() {
+                let Some((x0, x1)) = *span else { continue };
+                if !free(r, c) {
+                    continue;
+                }
+                match spans.last_mut() {
+                    Some(last) if last.1 == x0 => last.1 = x1,
+                    _ => spans.push((x0, x1)),
+                }
+            }
+            for &(x0, x1) in spans.iter() {
+                let mut x = x0;
+                while x < x1 {
+                    // Blocks as in `fast9_span`; lanes outside `[x, x1)` are dropped.
+                    let start = if x1 - x0 >= LANES {
+                        x.min(x1 - LANES)
+                    } else {
+                        x
+                    };
+                    let keep = x1.min(start + LANES);
+                    let mut mask = if start + LANES < w {
+                        local_max_mask(up, mid, down, start)
+                    } else {
+                        (start..keep).fold(0_u16, |m, i| {
+                            let max = mid[i] != 0 && is_local_max(up, mid, down, i);
+                            m | u16::from(max) << (i - start)
+                        })
+                    };
+                    mask &= ((1_u32 << (keep - start)) - (1_u32 << (x - start))) as u16;
+                    while mask != 0 {
+                        consider(start + mask.trailing_zeros() as usize, y, r);
+                        mask &= mask - 1;
+                    }
+                    x = keep;
+                }
             }
         }
     }
 }
 
-/// 3 × 3 non-maximum test on the FAST-score image: strictly above the neighbours that come
-/// first in row-major order, at least equal to the others (a plateau keeps its first pixel).
-/// The caller keeps `(x, y)` at least one pixel from the edge.
-fn is_local_max(scores: &[u8], w: usize, x: usize, y: usize) -> bool {
-    let i = y * w + x;
-    let s = scores[i];
-    let before = [i - w - 1, i - w, i - w + 1, i - 1];
-    let after = [i + 1, i + w - 1, i + w, i + w + 1];
-    before.iter().all(|&j| scores[j] < s) && after.iter().all(|&j| scores[j] <= s)
+/// Per-level work space of [`FeatureDetector::detect`].
+#[derive(Debug, Default)]
+struct Scratch {
+    /// FAST scores of three consecutive rows, row `y` in slot `y mod 3`.
+    scores: Vec<u8>,
+    /// Per grid column: the level columns `[x0, x1)` inside the border that fall in it.
+    col_span: Vec<Option<(usize, usize)>>,
+    /// Per level column: the grid column it falls in, `None` outside the border.
+    col_cell: Vec<Option<usize>>,
+    /// Per level row: the grid row it falls in, `None` outside the border.
+    row_cell: Vec<Option<usize>>,
+    /// Column spans of the FAST scores to compute on the current row.
+    spans: Vec<(usize, usize)>,
+}
+
+impl Scratch {
+    /// Size the buffers for a `w × h` level with border `b` and map its pixels to cells, with
+    /// the same arithmetic as [`Grid::cell_of`] on the level-0 position.
+    fn prepare(&mut self, grid: &Grid, level: u32, w: usize, h: usize, b: usize) {
+        let cols = grid.cols as usize;
+        self.scores.clear();
+        self.scores.resize(3 * w, 0);
+        self.col_span.clear();
+        self.col_span.resize(cols, None);
+        self.col_cell.clear();
+        self.col_cell.resize(w, None);
+        for x in b..w - b {
+            let px = Camera::level_to_base(&Vector2::new(x as f64, 0.0), level);
+            // On row 0 the cell index is the column.
+            if let Some(c) = grid.cell_of(&px) {
+                let span = self.col_span[c].get_or_insert((x, x));
+                span.1 = x + 1;
+                self.col_cell[x] = Some(c);
+            }
+        }
+        self.row_cell.clear();
+        self.row_cell.extend((0..h).map(|y| {
+            if y < b || y >= h - b {
+                return None;
+            }
+            let px = Camera::level_to_base(&Vector2::new(0.0, y as f64), level);
+            grid.cell_of(&px).map(|i| i / cols)
+        }));
+    }
+}
+
+/// The 16 pixels of the Bresenham circle of radius 3, `(dx, dy)`, clockwise from the top.
+const CIRCLE: [(isize, isize); 16] = [
+    (0, -3),
+    (1, -3),
+    (2, -2),
+    (3, -1),
+    (3, 0),
+    (3, 1),
+    (2, 2),
+    (1, 3),
+    (0, 3),
+    (-1, 3),
+    (-2, 2),
+    (-3, 1),
+    (-3, 0),
+    (-3, -1),
+    (-2, -2),
+    (-1, -3),
+];
+
+/// Pixels tested at once by [`fast9_span`]: one SSE2 register of bytes.
+const LANES: usize = 16;
+
+/// Columns of the pixels a block of [`LANES`] pixels reads: 3 either side.
+const WINDOW: usize = LANES + 6;
+
+/// FAST-9 scores of the pixels `[x0, x1)` of the middle row of `rows` (rows `y − 3` to
+/// `y + 3`, of equal length) into `out[x0..x1]`; the caller keeps `3 ≤ x0` and
+/// `x1 + 3 ≤ width`.
+fn fast9_span(rows: &[&[u8]; 7], x0: usize, x1: usize, threshold: u8, out: &mut [u8]) {
+    let width = rows[3].len();
+    let mut x = x0;
+    while x < x1 {
+        // Blocks of `LANES` pixels; the last one is shifted left to end at `x1` (a few pixels
+        // scored twice) unless the span is shorter than a block.
+        let start = if x1 - x0 >= LANES {
+            x.min(x1 - LANES)
+        } else {
+            x
+        };
+        let full: [Option<&[u8; WINDOW]>; 7] =
+            std::array::from_fn(|i| rows[i].get(start - 3..start + LANES + 3)?.try_into().ok());
+        let scores = if let [
+            Some(a),
+            Some(b),
+            Some(c),
+            Some(d),
+            Some(e),
+            Some(f),
+            Some(g),
+        ] = full
+        {
+            fast9_block(&[a, b, c, d, e, f, g], threshold)
+        } else {
+            // Near the right edge of a narrow image the window is padded with zeros; only
+            // lanes left of `x1`, which read real pixels, are kept.
+            let mut padded = [[0_u8; WINDOW]; 7];
+            let end = (start + LANES + 3).min(width);
+            for (win, row) in padded.iter_mut().zip(rows) {
+                win[..end + 3 - start].copy_from_slice(&row[start - 3..end]);
+            }
+            fast9_block(&padded.each_ref(), threshold)
+        };
+        let keep = x1.min(start + LANES);
+        out[x..keep].copy_from_slice(&scores[x - start..keep - start]);
+        x = keep;
+    }
+}
+
+/// FAST-9 scores of the [`LANES`] pixels `window[3][3..3 + LANES]`, 0 for a pixel that is no
+/// corner.
+///
+/// The score is the largest threshold at which the pixel still passes the segment test: over
+/// the 16 arcs of 9 contiguous circle pixels, the largest of the smallest difference to the
+/// centre along the arc (brighter or darker), minus one as the test is strict. The pixel is a
+/// corner for `threshold` iff that score is at least `threshold`. An arc holding both a
+/// brighter and a darker pixel has a smallest saturated difference of 0 either way, and a
+/// brighter and a darker arc of 9 cannot coexist on 16 pixels, so saturating differences
+/// give the same score. Blocks where no pixel passes the high-speed test (an arc of 9 holds
+/// two consecutive pixels of 1, 5, 9, 13, the compass points) are rejected first. Written lane
+/// by lane on fixed-size arrays so that it compiles to byte-vector instructions.
+#[inline(always)]
+fn fast9_block(window: &[&[u8; WINDOW]; 7], threshold: u8) -> [u8; LANES] {
+    let centre: [u8; LANES] = std::array::from_fn(|j| window[3][3 + j]);
+    // Circle pixel `k` of every lane.
+    let ring = |k: usize| -> [u8; LANES] {
+        let (dx, dy) = CIRCLE[k];
+        let row = window[3_usize.wrapping_add_signed(dy)];
+        let start = 3_usize.wrapping_add_signed(dx);
+        std::array::from_fn(|j| row[start + j])
+    };
+    // Listed rather than looped over, so that every load has a constant offset.
+    let rings = [
+        ring(0),
+        ring(1),
+        ring(2),
+        ring(3),
+        ring(4),
+        ring(5),
+        ring(6),
+        ring(7),
+        ring(8),
+        ring(9),
+        ring(10),
+        ring(11),
+        ring(12),
+        ring(13),
+        ring(14),
+        ring(15),
+    ];
+    let (north, east, south, west) = (rings[0], rings[4], rings[8], rings[12]);
+    let (mut pass_bright, mut pass_dark) = (false, false);
+    for j in 0..LANES {
+        let c = centre[j];
+        let b = |p: u8| p.saturating_sub(c);
+        let d = |p: u8| c.saturating_sub(p);
+        let bright = b(north[j]).max(b(south[j])).min(b(east[j]).max(b(west[j])));
+        let dark = d(north[j]).max(d(south[j])).min(d(east[j]).max(d(west[j])));
+        pass_bright |= bright > threshold;
+        pass_dark |= dark > threshold;
+    }
+    // Each polarity only where some pixel passes its high-speed test.
+    let mut diff = [[0_u8; LANES]; 16];
+    let bright = if pass_bright {
+        for (d, p) in diff.iter_mut().zip(&rings) {
+            for j in 0..LANES {
+                d[j] = p[j].saturating_sub(centre[j]);
+            }
+        }
+        best_arc(&diff)
+    } else {
+        [0; LANES]
+    };
+    let dark = if pass_dark {
+        for (d, p) in diff.iter_mut().zip(&rings) {
+            for j in 0..LANES {
+                d[j] = centre[j].saturating_sub(p[j]);
+            }
+        }
+        best_arc(&diff)
+    } else {
+        [0; LANES]
+    };
+    let mut out = [0_u8; LANES];
+    for j in 0..LANES {
+        let m = bright[j].max(dark[j]);
+        out[j] = if m > threshold { m - 1 } else { 0 };
+    }
+    out
+}
+
+/// Per lane, the largest over the 16 circular arcs of 9 of the smallest of `d` along the arc:
+/// minima over runs of 2, 4, 8, then 9 pixels.
+#[inline(always)]
+fn best_arc(d: &[[u8; LANES]; 16]) -> [u8; LANES] {
+    #[inline(always)]
+    fn runs(a: &[[u8; LANES]; 16], b: &[[u8; LANES]; 16], shift: usize) -> [[u8; LANES]; 16] {
+        let mut out = [[0_u8; LANES]; 16];
+        for k in 0..16 {
+            let (p, q) = (&a[k], &b[(k + shift) & 15]);
+            for j in 0..LANES {
+                out[k][j] = p[j].min(q[j]);
+            }
+        }
+        out
+    }
+    let run2 = runs(d, d, 1);
+    let run4 = runs(&run2, &run2, 2);
+    let run8 = runs(&run4, &run4, 4);
+    let run9 = runs(&run8, d, 8);
+    let mut best = [0_u8; LANES];
+    for r in &run9 {
+        for j in 0..LANES {
+            best[j] = best[j].max(r[j]);
+        }
+    }
+    best
+}
+
+/// Bit `j` set iff pixel `x + j` of `mid`, `j < LANES`, is a corner (non-zero score) and
+/// passes [`is_local_max`]. The caller keeps `1 ≤ x` and `x + LANES < width`.
+#[inline(always)]
+fn local_max_mask(up: &[u8], mid: &[u8], down: &[u8], x: usize) -> u16 {
+    let at = |row: &[u8], start: usize| -> [u8; LANES] {
+        let mut v = [0_u8; LANES];
+        v.copy_from_slice(&row[start..start + LANES]);
+        v
+    };
+    let s = at(mid, x);
+    let (ul, uc, ur) = (at(up, x - 1), at(up, x), at(up, x + 1));
+    let (ml, mr) = (at(mid, x - 1), at(mid, x + 1));
+    let (dl, dc, dr) = (at(down, x - 1), at(down, x), at(down, x + 1));
+    let mut mask = 0_u16;
+    for j in 0..LANES {
+        let v = s[j];
+        let before = (ul[j] < v) & (uc[j] < v) & (ur[j] < v) & (ml[j] < v);
+        let after = (mr[j] <= v) & (dl[j] <= v) & (dc[j] <= v) & (dr[j] <= v);
+        mask |= u16::from((v != 0) & before & after) << j;
+    }
+    mask
+}
+
+/// 3 × 3 non-maximum test of pixel `x` of `mid` between rows `up` and `down` of FAST scores:
+/// strictly above the neighbours that come first in row-major order, at least equal to the
+/// others (a plateau keeps its first pixel). The caller keeps `x` at least one pixel from the
+/// edge.
+fn is_local_max(up: &[u8], mid: &[u8], down: &[u8], x: usize) -> bool {
+    let s = mid[x];
+    up[x - 1] < s
+        && up[x] < s
+        && up[x + 1] < s
+        && mid[x - 1] < s
+        && mid[x + 1] <= s
+        && down[x - 1] <= s
+        && down[x] <= s
+        && down[x + 1] <= s
 }
 
 /// Shi-Tomasi score at pixel `(x, y)`: the smaller eigenvalue of the mean of `∇I ∇Iᵀ` over
@@ -443,22 +775,26 @@ pub fn shi_tomasi_score(img: &GrayImage, x: u32, y: u32) -> Option<f32> {
     if x < MIN_BORDER_PX || y < MIN_BORDER_PX || x + HALF_WINDOW >= w || y + HALF_WINDOW >= h {
         return None;
     }
+    const SIDE: usize = SHI_TOMASI_WINDOW_PX as usize;
     let p = img.as_raw();
     let w = w as usize;
     let (x, y) = (x as usize, y as usize);
     let half = HALF_WINDOW as usize;
     // Sums of products of undivided differences: |d| ≤ 255, 64 terms, well inside i32.
-    let (mut sxx, mut sxy, mut syy) = (0_i32, 0_i32, 0_i32);
+    let (mut sxx, mut sxy, mut syy) = ([0_i32; SIDE], [0_i32; SIDE], [0_i32; SIDE]);
     for r in y - half..y + half {
-        let row = r * w;
-        for c in x - half..x + half {
-            let dx = i32::from(p[row + c + 1]) - i32::from(p[row + c - 1]);
-            let dy = i32::from(p[row + w + c]) - i32::from(p[row - w + c]);
-            sxx += dx * dx;
-            sxy += dx * dy;
-            syy += dy * dy;
+        let row = &p[r * w + x - half - 1..][..SIDE + 2];
+        let up = &p[(r - 1) * w + x - half..][..SIDE];
+        let down = &p[(r + 1) * w + x - half..][..SIDE];
+        for j in 0..SIDE {
+            let dx = i32::from(i16::from(row[j + 2]) - i16::from(row[j]));
+            let dy = i32::from(i16::from(down[j]) - i16::from(up[j]));
+            sxx[j] += dx * dx;
+            sxy[j] += dx * dy;
+            syy[j] += dy * dy;
         }
     }
+    let (sxx, sxy, syy): (i32, i32, i32) = (sxx.iter().sum(), sxy.iter().sum(), syy.iter().sum());
     // Each difference is twice the gradient: divide the products by 4, the sums by the count.
     let norm = 1.0 / (4.0 * f64::from(SHI_TOMASI_WINDOW_PX * SHI_TOMASI_WINDOW_PX));
     let (a, b, c) = (
@@ -743,6 +1079,226 @@ mod tests {
         }
         // Deterministic.
         assert_eq!(features, det.detect(&pyr, &det.empty_occupancy()).unwrap());
+    }
+
+    /// FAST scores of every pixel of `img` by [`fast9_span`], as `(x, y, score)` of the
+    /// corners in row-major order.
+    fn fast9_image(img: &GrayImage, threshold: u8) -> Vec<(u32, u32, u8)> {
+        let (w, h) = (img.width() as usize, img.height() as usize);
+        let mut corners = Vec::new();
+        if w < 7 || h < 7 {
+            return corners;
+        }
+        let p = img.as_raw();
+        let mut row = vec![0_u8; w];
+        for y in 3..h - 3 {
+            let rows: [&[u8]; 7] = std::array::from_fn(|i| &p[(y + i - 3) * w..][..w]);
+            fast9_span(&rows, 3, w - 3, threshold, &mut row);
+            for (x, &s) in row.iter().enumerate().take(w - 3).skip(3) {
+                if s > 0 {
+                    corners.push((x as u32, y as u32, s));
+                }
+            }
+        }
+        corners
+    }
+
+    /// The oracle: `imageproc`'s FAST-9 corners and scores.
+    fn imageproc_fast9(img: &GrayImage, threshold: u8) -> Vec<(u32, u32, u8)> {
+        imageproc::corners::corners_fast9(img, threshold)
+            .iter()
+            .map(|c| (c.x, c.y, c.score as u8))
+            .collect()
+    }
+
+    /// 3 × 3 box blur with rounding, edges kept (the bench's frame).
+    fn blur(pixels: &[u8], w: u32, h: u32) -> Vec<u8> {
+        let (w, h) = (w as usize, h as usize);
+        let mut out = pixels.to_vec();
+        for y in 1..h - 1 {
+            for x in 1..w - 1 {
+                let sum: u32 = (y - 1..=y + 1)
+                    .flat_map(|r| (x - 1..=x + 1).map(move |c| r * w + c))
+                    .map(|i| u32::from(pixels[i]))
+                    .sum();
+                out[y * w + x] = ((sum + 4) / 9) as u8;
+            }
+        }
+        out
+    }
+
+    /// Noise with many saturated pixels: each pixel 0, 255 or uniform.
+    fn noise(w: u32, h: u32, seed: u64) -> Vec<u8> {
+        let mut rng = SplitMix(seed);
+        (0..w * h)
+            .map(|_| match rng.range(0, 4) {
+                0 => 0,
+                1 => 255,
+                _ => rng.range(0, 256) as u8,
+            })
+            .collect()
+    }
+
+    #[test]
+    fn fast9_agrees_with_imageproc() {
+        let (w, h) = (384_u32, 256_u32);
+        let images = [
+            texture(w, h, 7),
+            blur(&texture(w, h, 8), w, h),
+            noise(w, h, 9),
+            squares(w, h, 16, 5).0,
+            squares(w, h, 3, 11).0,
+            vec![90; (w * h) as usize],
+        ];
+        for (i, pixels) in images.into_iter().enumerate() {
+            let img = GrayImage::from_raw(w, h, pixels).unwrap();
+            for threshold in [1, 2, 10, 19, 20, 21, 50, 100, 200, 254, 255] {
+                let expected = imageproc_fast9(&img, threshold);
+                assert_eq!(
+                    fast9_image(&img, threshold),
+                    expected,
+                    "image {i}, threshold {threshold}"
+                );
+            }
+        }
+        // The full frame of `textured_frame_count`, at the default threshold.
+        let img = GrayImage::from_raw(768, 1024, texture(768, 1024, 2026)).unwrap();
+        let expected = imageproc_fast9(&img, 20);
+        assert!(expected.len() > 10_000, "{} corners", expected.len());
+        assert_eq!(fast9_image(&img, 20), expected);
+    }
+
+    /// Narrow images: spans shorter than a vector of pixels, and a last block shifted left.
+    #[test]
+    fn fast9_agrees_with_imageproc_on_narrow_images() {
+        for w in 1..=40_u32 {
+            for (seed, h) in [(1, 7_u32), (2, 12), (3, 40)] {
+                let img = GrayImage::from_raw(w, h, noise(w, h, seed + u64::from(w))).unwrap();
+                for threshold in [1, 20, 100] {
+                    assert_eq!(
+                        fast9_image(&img, threshold),
+                        imageproc_fast9(&img, threshold),
+                        "{w} × {h}, threshold {threshold}"
+                    );
+                }
+            }
+        }
+    }
+
+    /// The detector as it was written on `imageproc`'s FAST-9 (every pixel tested and scored,
+    /// suppression on a full score image, occupancy checked per corner): the reference for
+    /// [`FeatureDetector::detect`].
+    fn detect_reference(
+        det: &FeatureDetector,
+        pyramid: &Pyramid,
+        occupancy: &Occupancy,
+    ) -> Vec<Feature> {
+        let mut best: Vec<Option<Feature>> = vec![None; det.grid().n_cells()];
+        for (level, img) in (0..det.config().n_levels).zip(pyramid.levels()) {
+            let (w, h) = img.dimensions();
+            let border = det.config().border_px;
+            if w <= 2 * border || h <= 2 * border {
+                continue;
+            }
+            let corners = imageproc::corners::corners_fast9(img, det.config().fast_threshold);
+            let mut fast_scores = vec![0_u8; w as usize * h as usize];
+            for c in &corners {
+                fast_scores[c.y as usize * w as usize + c.x as usize] = c.score as u8;
+            }
+            let to_level_0 = 0.25_f32.powi(level as i32);
+            for c in &corners {
+                if c.x < border || c.y < border || c.x >= w - border || c.y >= h - border {
+                    continue;
+                }
+                let (x, y, w) = (c.x as usize, c.y as usize, w as usize);
+                let row = |r: usize| &fast_scores[r * w..(r + 1) * w];
+                if !is_local_max(row(y - 1), row(y), row(y + 1), x) {
+                    continue;
+                }
+                let px =
+                    Camera::level_to_base(&Vector2::new(f64::from(c.x), f64::from(c.y)), level);
+                let Some(cell) = det.grid().cell_of(&px) else {
+                    continue;
+                };
+                if occupancy.is_occupied(cell) {
+                    continue;
+                }
+                let Some(score) = shi_tomasi_score(img, c.x, c.y) else {
+                    continue;
+                };
+                let score = score * to_level_0;
+                if score <= det.config().min_shi_tomasi_score {
+                    continue;
+                }
+                let slot = &mut best[cell];
+                if slot.is_none_or(|f| score > f.score) {
+                    *slot = Some(Feature { px, level, score });
+                }
+            }
+        }
+        best.into_iter().flatten().collect()
+    }
+
+    /// Random occupancy: each cell occupied with probability `percent` %.
+    fn random_occupancy(det: &FeatureDetector, percent: u32, seed: u64) -> Occupancy {
+        let mut rng = SplitMix(seed);
+        let mut occupancy = det.empty_occupancy();
+        for i in 0..det.grid().n_cells() {
+            if rng.range(0, 100) < percent {
+                occupancy.occupy_cell(i);
+            }
+        }
+        occupancy
+    }
+
+    /// The fast detector returns exactly the features of the reference on textures, blobs and
+    /// squares, odd image sizes (levels that round down, cells cut by the edge), other
+    /// settings, and free, partly and fully occupied grids.
+    #[test]
+    fn detect_matches_the_imageproc_reference() {
+        let cases = [
+            (768_u32, 1024_u32, texture(768, 1024, 2026)),
+            (768, 1024, blur(&texture(768, 1024, 2027), 768, 1024)),
+            (384, 256, squares(384, 256, 16, 5).0),
+            (384, 256, squares(384, 256, 3, 11).0),
+            (203, 131, blur(&noise(203, 131, 4), 203, 131)),
+            (203, 131, texture(203, 131, 12)),
+        ];
+        let configs = [
+            DetectorConfig::default(),
+            DetectorConfig {
+                cell_size_px: 24,
+                fast_threshold: 7,
+                min_shi_tomasi_score: 0.0,
+                n_levels: 5,
+                border_px: 5,
+            },
+            DetectorConfig {
+                cell_size_px: 37,
+                fast_threshold: 40,
+                min_shi_tomasi_score: 30.0,
+                n_levels: 2,
+                border_px: 13,
+            },
+        ];
+        for (i, (w, h, pixels)) in cases.into_iter().enumerate() {
+            let pyr = pyramid(w, h, pixels);
+            for (j, config) in configs.iter().enumerate() {
+                let det = FeatureDetector::new(*config, &camera(w, h)).unwrap();
+                for (k, percent) in [0, 10, 50, 90, 100].into_iter().enumerate() {
+                    let occupancy = random_occupancy(&det, percent, 100 + k as u64);
+                    let features = det.detect(&pyr, &occupancy).unwrap();
+                    assert_eq!(
+                        features,
+                        detect_reference(&det, &pyr, &occupancy),
+                        "image {i}, config {j}, {percent} % occupied"
+                    );
+                    if percent == 0 && j == 0 && i < 2 {
+                        assert!(features.len() > 150, "{} features", features.len());
+                    }
+                }
+            }
+        }
     }
 
     #[test]
