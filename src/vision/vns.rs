@@ -1,0 +1,1334 @@
+//! The visual navigation system (VNS) of the paper: semi-direct visual odometry (SVO 1) on the
+//! down-looking camera, fed with the images and the initial estimate `x̊₀` only (paper,
+//! "VNS flow diagram"; sections "SVO" and "SVO pose optimization"). Synchronous and
+//! deterministic: the mapping work of SVO's second thread (depth filter, new keyframes) runs
+//! inside [`Vns::process`] after the motion work of the same frame.
+//!
+//! Per frame, after the two-view initialisation ([`crate::vision::homography`]):
+//! 1. sparse image alignment against the previous frame ([`crate::vision::sparse_align`]);
+//! 2. reprojection of the points of the closest overlapping keyframes and of the candidates
+//!    into the grid, one direct match per cell ([`crate::vision::matcher`]);
+//! 3. pose optimisation ([`crate::vision::pose_opt`]), outliers dropped;
+//! 4. structure optimisation of the least recently refined points
+//!    ([`crate::vision::structure_opt`]);
+//! 5. tracking-quality check; a failure starts relocalisation against the closest keyframe;
+//! 6. keyframe selection (no overlapping keyframe within 0.12 × the median depth), new seeds on
+//!    free cells, the furthest keyframe dropped beyond the map's size;
+//! 7. depth-filter update of every live seed by epipolar search; converged seeds become
+//!    candidates.
+//!
+//! Settings are SVO 1's defaults adapted to the 768 × 1024 camera (docs/REFERENCES.md); the map
+//! keeps [`VnsConfig::max_keyframes`] keyframes (SVO's "accurate" preset, 50) so that terrain
+//! seen before a turn can be re-observed after it.
+
+use std::sync::Arc;
+
+use nalgebra::{Isometry3, Unit, Vector2, Vector3};
+
+use super::camera::Camera;
+use super::depth_filter::{Seed, SeedUpdate, inverse_depth_variance};
+use super::features::{DetectorConfig, FeatureDetector, FeatureError};
+use super::homography::{HomographyConfig, UnitPlaneMatch, initialise_two_view};
+use super::klt::KltFeature;
+use super::map::{
+    CANDIDATE_MAX_FAILURES, GOOD_AFTER_SUCCESSES, Keyframe, KeyframeFeature, KeyframeId, Map,
+    Observation, PointId, PointKind, UNKNOWN_MAX_FAILURES,
+};
+use super::matcher::{find_epipolar_match, find_match_direct};
+use super::pose_opt::{PoseObservation, PoseOptConfig, optimize_pose};
+use super::pyramid::{Pyramid, PyramidError};
+use super::sparse_align::{AlignFeature, SparseAlignConfig, sparse_align};
+use super::structure_opt::{PointObservation, optimize_point};
+use crate::math::wgs84;
+use crate::sensors::Frame;
+
+/// Settings of the VNS.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VnsConfig {
+    /// Feature detection.
+    pub detector: DetectorConfig,
+    /// Sparse image alignment.
+    pub sparse_align: SparseAlignConfig,
+    /// Pose optimisation.
+    pub pose: PoseOptConfig,
+    /// Two-view initialisation.
+    pub homography: HomographyConfig,
+    /// Largest number of keyframes kept (the furthest is dropped beyond it).
+    pub max_keyframes: usize,
+    /// Keyframes whose points are reprojected into a frame (the closest overlapping ones).
+    pub reprojection_keyframes: usize,
+    /// Matches per frame at most (SVO `max_fts`).
+    pub max_matches: usize,
+    /// Fewer matches or inliers than this is a tracking failure (SVO `quality_min_fts`).
+    pub min_matches: usize,
+    /// A drop of more inliers than this from the previous frame is a tracking failure (SVO
+    /// `quality_max_drop_fts`).
+    pub max_match_drop: usize,
+    /// Keyframe distance over the median depth (SVO `kfselect_mindist`).
+    pub keyframe_min_distance: f64,
+    /// Points refined per frame by structure optimisation.
+    pub structure_points: usize,
+    /// Gauss-Newton iterations per refined point.
+    pub structure_iterations: u32,
+    /// Median feature displacement that triggers the two-view initialisation, px.
+    pub init_min_disparity_px: f64,
+    /// Fewer tracked features than this restarts the initialisation.
+    pub init_min_tracked: usize,
+    /// Features needed in the first image of an initialisation.
+    pub init_min_features: usize,
+    /// Grid cell of the first image's detection, px (finer than tracking's: the homography
+    /// and the first map want many points).
+    pub init_cell_size_px: u32,
+    /// Features sparse alignment must use for a relocalisation attempt to go on.
+    pub relocalise_min_tracked: usize,
+    /// Seeds live for this many keyframes.
+    pub seed_keyframes: u64,
+    /// Projections closer than this to the image border are not matched, px.
+    pub reprojection_border_px: f64,
+    /// A keyframe observation is a reference for matching only within this viewing-angle
+    /// cosine of the current view (SVO: 0.5, 60°).
+    pub min_view_cos: f64,
+}
+
+impl Default for VnsConfig {
+    fn default() -> Self {
+        Self {
+            detector: DetectorConfig::default(),
+            sparse_align: SparseAlignConfig::default(),
+            pose: PoseOptConfig::default(),
+            homography: HomographyConfig::default(),
+            max_keyframes: 50,
+            reprojection_keyframes: 10,
+            max_matches: 160,
+            min_matches: 50,
+            max_match_drop: 40,
+            keyframe_min_distance: 0.12,
+            structure_points: 20,
+            structure_iterations: 5,
+            init_min_disparity_px: 50.0,
+            init_min_tracked: 50,
+            init_min_features: 100,
+            init_cell_size_px: 32,
+            relocalise_min_tracked: 30,
+            seed_keyframes: 3,
+            reprojection_border_px: 8.0,
+            min_view_cos: 0.5,
+        }
+    }
+}
+
+/// Why the VNS could not be built or a frame not used.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum VnsError {
+    /// The detector settings are invalid.
+    #[error("vns: {0}")]
+    Detector(#[from] FeatureError),
+    /// The frame does not fit the camera (size, buffer).
+    #[error("vns: bad frame: {0}")]
+    BadFrame(#[from] PyramidError),
+    /// A frame not after the previous one.
+    #[error("vns: frame at {t_us} µs is not after the previous one at {previous_us} µs")]
+    OutOfOrder {
+        /// The frame's time, µs.
+        t_us: u64,
+        /// The previous frame's time, µs.
+        previous_us: u64,
+    },
+}
+
+/// Where the VNS starts: the initial estimate `x̊₀` at the first image.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VnsStart {
+    /// Camera pose at the image (camera → Earth).
+    pub zeta_ec: Isometry3<f64>,
+    /// Height of the camera over the terrain, m (the initialisation's scale).
+    pub h_agl_m: f64,
+}
+
+/// State of the VNS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum VnsState {
+    /// No first image yet (or no start estimate for it).
+    WaitingForStart,
+    /// Tracking the first image's features until the two-view initialisation succeeds.
+    Initialising,
+    /// Tracking.
+    Tracking,
+    /// Tracking was lost; each frame tries to relocalise against the closest keyframe.
+    Relocalising,
+}
+
+/// What one frame gave.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VnsOutput {
+    /// Exposure time, µs.
+    pub t_us: u64,
+    /// The visual camera pose `zeta_ec` (while tracking; the last good one while relocalising).
+    pub zeta_ec: Isometry3<f64>,
+    /// State after the frame.
+    pub state: VnsState,
+    /// Features matched in the frame (before pose optimisation).
+    pub n_matched: usize,
+    /// Inliers of the pose optimisation.
+    pub n_inliers: usize,
+    /// Keyframes in the map.
+    pub n_keyframes: usize,
+    /// Points in the map (candidates included).
+    pub n_points: usize,
+    /// Live depth-filter seeds.
+    pub n_seeds: usize,
+    /// RMS reprojection error of the inliers, px.
+    pub reprojection_rms_px: f64,
+    /// The frame became a keyframe.
+    pub keyframe: bool,
+}
+
+/// Counters of the VNS.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default)]
+pub struct VnsCounters {
+    /// Frames processed.
+    pub frames: u64,
+    /// Frames rejected (size, buffer, time).
+    pub bad_frames: u64,
+    /// Successful two-view initialisations.
+    pub initialisations: u64,
+    /// Initialisations restarted (too few tracks, homography failures).
+    pub init_restarts: u64,
+    /// Tracking losses.
+    pub tracking_losses: u64,
+    /// Successful relocalisations.
+    pub relocalisations: u64,
+    /// Keyframes created.
+    pub keyframes: u64,
+    /// Seeds converged into candidates.
+    pub seeds_converged: u64,
+}
+
+/// A depth-filter seed and the keyframe feature it belongs to.
+#[derive(Debug, Clone)]
+struct LiveSeed {
+    keyframe: KeyframeId,
+    feature: usize,
+    /// Unit bearing in the keyframe's camera.
+    f_ref: Vector3<f64>,
+    seed: Seed,
+}
+
+/// The previous frame, for sparse alignment.
+#[derive(Debug, Clone)]
+struct LastFrame {
+    t_us: u64,
+    zeta_ec: Isometry3<f64>,
+    pyramid: Arc<Pyramid>,
+    /// Matched features: level-0 pixel, level, point.
+    features: Vec<(Vector2<f64>, u32, PointId)>,
+}
+
+/// The first image of an initialisation and its tracks.
+#[derive(Debug, Clone)]
+struct InitTracks {
+    t_us: u64,
+    start: VnsStart,
+    pyramid: Arc<Pyramid>,
+    /// Detected features: level-0 pixel and level.
+    features: Vec<(Vector2<f64>, u32)>,
+    /// Their tracking templates.
+    klt: Vec<KltFeature>,
+    /// Latest tracked level-0 pixel of each feature (`None`: lost).
+    tracked: Vec<Option<Vector2<f64>>>,
+}
+
+/// One matched feature of the current frame.
+#[derive(Debug, Clone, Copy)]
+struct FrameMatch {
+    point: PointId,
+    px: Vector2<f64>,
+    level: u32,
+}
+
+/// Seeds are updated only from frames that see them with at least this parallax, px.
+const MIN_SEED_PARALLAX_PX: f64 = 2.0;
+
+/// Largest frame-to-frame motion of an initial track, px (rotations in turbulence move the
+/// image by ~20 px per degree).
+const MAX_INIT_TRACK_JUMP_PX: f64 = 40.0;
+
+/// The visual navigation system.
+#[derive(Debug, Clone)]
+pub struct Vns {
+    camera: Camera,
+    cfg: VnsConfig,
+    detector: FeatureDetector,
+    init_detector: FeatureDetector,
+    state: VnsState,
+    map: Map,
+    seeds: Vec<LiveSeed>,
+    last: Option<LastFrame>,
+    init: Option<InitTracks>,
+    /// Cells in the fixed random order matching visits them.
+    cell_order: Vec<usize>,
+    /// Frame counter (structure optimisation's age).
+    frame_index: u64,
+    counters: VnsCounters,
+    /// The motion between the last two tracked frames (`zeta_prev⁻¹ zeta_last`).
+    last_motion: Option<Isometry3<f64>>,
+    /// Last good pose and its time (what relocalisation starts from).
+    last_good: Option<(u64, Isometry3<f64>)>,
+}
+
+impl Vns {
+    /// A VNS for `camera`; `seed` fixes the order in which grid cells are matched.
+    pub fn new(camera: Camera, cfg: VnsConfig, seed: u64) -> Result<Self, VnsError> {
+        let detector = FeatureDetector::new(cfg.detector, &camera)?;
+        let init_detector = FeatureDetector::new(
+            DetectorConfig {
+                cell_size_px: cfg.init_cell_size_px,
+                ..cfg.detector
+            },
+            &camera,
+        )?;
+        let n = detector.grid().n_cells();
+        let mut cell_order: Vec<usize> = (0..n).collect();
+        // Fisher-Yates with SplitMix64.
+        let mut state = seed;
+        for i in (1..n).rev() {
+            state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+            let mut z = state;
+            z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+            z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+            z ^= z >> 31;
+            cell_order.swap(i, (z % (i as u64 + 1)) as usize);
+        }
+        Ok(Self {
+            camera,
+            cfg,
+            detector,
+            init_detector,
+            state: VnsState::WaitingForStart,
+            map: Map::new(),
+            seeds: Vec::new(),
+            last: None,
+            init: None,
+            cell_order,
+            frame_index: 0,
+            counters: VnsCounters::default(),
+            last_motion: None,
+            last_good: None,
+        })
+    }
+
+    /// The state.
+    pub fn state(&self) -> VnsState {
+        self.state
+    }
+
+    /// The counters.
+    pub fn counters(&self) -> &VnsCounters {
+        &self.counters
+    }
+
+    /// The map.
+    pub fn map(&self) -> &Map {
+        &self.map
+    }
+
+    /// The camera.
+    pub fn camera(&self) -> &Camera {
+        &self.camera
+    }
+
+    /// Process one frame. `start` is the initial estimate at this frame's time; it is used only
+    /// while the VNS waits for its first image (the VNS never reads the INS afterwards).
+    /// Returns the visual pose once initialised.
+    pub fn process(
+        &mut self,
+        frame: &Frame,
+        start: Option<&VnsStart>,
+    ) -> Result<Option<VnsOutput>, VnsError> {
+        let previous_us = self
+            .last
+            .as_ref()
+            .map(|l| l.t_us)
+            .or(self.init.as_ref().map(|i| i.t_us));
+        if let Some(previous_us) = previous_us
+            && frame.t_us <= previous_us
+        {
+            self.counters.bad_frames += 1;
+            return Err(VnsError::OutOfOrder {
+                t_us: frame.t_us,
+                previous_us,
+            });
+        }
+        let pyramid = match Pyramid::from_frame(frame, &self.camera) {
+            Ok(p) => Arc::new(p),
+            Err(e) => {
+                self.counters.bad_frames += 1;
+                return Err(e.into());
+            }
+        };
+        self.counters.frames += 1;
+        self.frame_index += 1;
+        match self.state {
+            VnsState::WaitingForStart | VnsState::Initialising => {
+                Ok(self.initialise(frame.t_us, pyramid, start))
+            }
+            VnsState::Tracking | VnsState::Relocalising => {
+                Ok(Some(self.track(frame.t_us, pyramid)))
+            }
+        }
+    }
+
+    // ---------------------------------------------------------------- initialisation
+
+    fn start_init(&mut self, t_us: u64, pyramid: Arc<Pyramid>, start: &VnsStart) {
+        let occupancy = self.init_detector.empty_occupancy();
+        let features = self
+            .init_detector
+            .detect(&pyramid, &occupancy)
+            .unwrap_or_default();
+        if features.len() < self.cfg.init_min_features
+            || !(start.h_agl_m.is_finite() && start.h_agl_m > 0.0)
+        {
+            self.init = None;
+            self.state = VnsState::WaitingForStart;
+            return;
+        }
+        let features: Vec<_> = features.iter().map(|f| (f.px, f.level)).collect();
+        self.init = Some(InitTracks {
+            t_us,
+            start: *start,
+            klt: features
+                .iter()
+                .map(|(px, _)| KltFeature::new(&pyramid, px))
+                .collect(),
+            pyramid,
+            tracked: features.iter().map(|f| Some(f.0)).collect(),
+            features,
+        });
+        self.state = VnsState::Initialising;
+    }
+
+    fn initialise(
+        &mut self,
+        t_us: u64,
+        pyramid: Arc<Pyramid>,
+        start: Option<&VnsStart>,
+    ) -> Option<VnsOutput> {
+        let Some(mut init) = self.init.take() else {
+            if let Some(start) = start {
+                self.start_init(t_us, pyramid, start);
+            }
+            return None;
+        };
+        // Track every feature from its last position with its first-image patch, coarse to
+        // fine (the image moves a few pixels per frame).
+        for (k, klt) in init.klt.iter().enumerate() {
+            let Some(prev) = init.tracked[k] else {
+                continue;
+            };
+            init.tracked[k] = klt
+                .track(&pyramid, &prev)
+                .filter(|px| (px - prev).norm() < MAX_INIT_TRACK_JUMP_PX)
+                .filter(|px| self.camera.contains(px, 0.0));
+        }
+        init.t_us = t_us;
+        let pairs: Vec<(Vector2<f64>, Vector2<f64>)> = init
+            .features
+            .iter()
+            .zip(&init.tracked)
+            .filter_map(|((p0, _), t)| t.map(|t| (*p0, t)))
+            .collect();
+        if pairs.len() < self.cfg.init_min_tracked {
+            self.counters.init_restarts += 1;
+            self.init = None;
+            self.state = VnsState::WaitingForStart;
+            if let Some(start) = start {
+                self.start_init(t_us, pyramid, start);
+            }
+            return None;
+        }
+        let disparity = median(pairs.iter().map(|(a, b)| (b - a).norm()).collect());
+        if disparity < self.cfg.init_min_disparity_px {
+            self.init = Some(init);
+            return None;
+        }
+        let matches: Vec<UnitPlaneMatch> = pairs
+            .iter()
+            .map(|(a, b)| UnitPlaneMatch::from_pixels(&self.camera, a, b))
+            .collect();
+        // The terrain normal (down) in the first camera, from x̊₀: only a tie-breaker.
+        let zeta_ec1 = init.start.zeta_ec;
+        let pos = wgs84::ecef_to_geodetic(&zeta_ec1.translation.vector);
+        let down_e = wgs84::q_en(pos.lat_rad, pos.lon_rad) * Vector3::z();
+        let down_c1 = Unit::new_normalize(zeta_ec1.rotation.inverse() * down_e);
+        let result = initialise_two_view(
+            &matches,
+            self.camera.f_px(),
+            init.start.h_agl_m,
+            Some(&down_c1),
+            &self.cfg.homography,
+        );
+        let Ok(two_view) = result else {
+            // More parallax may help; give up only when the tracks thin out (above).
+            self.init = Some(init);
+            return None;
+        };
+        let metric = &two_view.metric;
+        let zeta_ec2 = zeta_ec1 * metric.zeta_c2c1.inverse();
+        // Keyframes 1 and 2 with the triangulated points.
+        let mut f1 = Vec::with_capacity(metric.points.len());
+        let mut f2 = Vec::with_capacity(metric.points.len());
+        let mut points_e = Vec::with_capacity(metric.points.len());
+        let pair_features: Vec<(Vector2<f64>, u32, Vector2<f64>)> = init
+            .features
+            .iter()
+            .zip(&init.tracked)
+            .filter_map(|((p0, l), t)| t.map(|t| (*p0, *l, t)))
+            .collect();
+        for tp in &metric.points {
+            let Some(&(p0, level, p2)) = pair_features.get(tp.index) else {
+                continue;
+            };
+            f1.push(KeyframeFeature {
+                px: p0,
+                level,
+                point: None,
+            });
+            f2.push(KeyframeFeature {
+                px: p2,
+                level,
+                point: None,
+            });
+            points_e.push(zeta_ec1 * nalgebra::Point3::from(tp.p_c1_m));
+        }
+        self.map.clear();
+        self.seeds.clear();
+        self.last_motion = None;
+        let kf1 = self.map.add_keyframe(Keyframe {
+            id: 0,
+            t_us: init.t_us,
+            zeta_ec: zeta_ec1,
+            pyramid: init.pyramid.clone(),
+            features: f1,
+        });
+        let kf2 = self.map.add_keyframe(Keyframe {
+            id: 0,
+            t_us,
+            zeta_ec: zeta_ec2,
+            pyramid: pyramid.clone(),
+            features: f2.clone(),
+        });
+        let mut last_features = Vec::with_capacity(points_e.len());
+        for (k, p_e) in points_e.iter().enumerate() {
+            let id = self.map.add_point(
+                p_e.coords,
+                PointKind::Unknown,
+                vec![
+                    Observation {
+                        keyframe: kf1,
+                        feature: k,
+                    },
+                    Observation {
+                        keyframe: kf2,
+                        feature: k,
+                    },
+                ],
+            );
+            last_features.push((f2[k].px, f2[k].level, id));
+        }
+        // New seeds in the second keyframe's free cells.
+        self.add_seeds(
+            kf2,
+            &pyramid,
+            &zeta_ec2,
+            metric.median_depth_c1_m,
+            metric.min_depth_c1_m,
+        );
+        self.counters.initialisations += 1;
+        self.counters.keyframes += 2;
+        self.state = VnsState::Tracking;
+        self.last_good = Some((t_us, zeta_ec2));
+        let n = last_features.len();
+        self.last = Some(LastFrame {
+            t_us,
+            zeta_ec: zeta_ec2,
+            pyramid,
+            features: last_features,
+        });
+        Some(self.output(t_us, zeta_ec2, n, n, f64::NAN, true))
+    }
+
+    // ---------------------------------------------------------------- tracking
+
+    fn track(&mut self, t_us: u64, pyramid: Arc<Pyramid>) -> VnsOutput {
+        let Some(last) = self.last.take() else {
+            self.state = VnsState::WaitingForStart;
+            return self.output(t_us, Isometry3::identity(), 0, 0, f64::NAN, false);
+        };
+        let relocalising = self.state == VnsState::Relocalising;
+        // The reference for sparse alignment: the previous frame, or when relocalising the
+        // keyframe closest to the last good pose.
+        let reference = if relocalising {
+            self.closest_keyframe_frame(&last.zeta_ec)
+        } else {
+            Some(last.clone())
+        };
+        let aligned = reference
+            .as_ref()
+            .and_then(|r| self.align(r, &pyramid, &last.zeta_ec));
+        let min_aligned = if relocalising {
+            self.cfg.relocalise_min_tracked
+        } else {
+            1
+        };
+        let result = match aligned {
+            Some((zeta, n)) if n >= min_aligned => self.track_from(t_us, &pyramid, zeta, &last),
+            _ => Err(0),
+        };
+        match result {
+            Ok((zeta_ec, matches, n_matched, rms, keyframe)) => {
+                if relocalising {
+                    self.counters.relocalisations += 1;
+                }
+                self.state = VnsState::Tracking;
+                self.last_motion = (!relocalising).then(|| last.zeta_ec.inverse() * zeta_ec);
+                self.last_good = Some((t_us, zeta_ec));
+                let n_inliers = matches.len();
+                self.last = Some(LastFrame {
+                    t_us,
+                    zeta_ec,
+                    pyramid,
+                    features: matches.iter().map(|m| (m.px, m.level, m.point)).collect(),
+                });
+                self.output(t_us, zeta_ec, n_matched, n_inliers, rms, keyframe)
+            }
+            Err(n_matched) => {
+                if !relocalising {
+                    self.counters.tracking_losses += 1;
+                }
+                self.state = VnsState::Relocalising;
+                // Keep the last good pose and image: the next frame relocalises from there.
+                let zeta = last.zeta_ec;
+                self.last = Some(LastFrame { t_us, ..last });
+                self.output(t_us, zeta, n_matched, 0, f64::NAN, false)
+            }
+        }
+    }
+
+    /// Sparse alignment of `pyramid` against `reference`, starting from `guess`; the pose and
+    /// the features used.
+    fn align(
+        &self,
+        reference: &LastFrame,
+        pyramid: &Pyramid,
+        guess: &Isometry3<f64>,
+    ) -> Option<(Isometry3<f64>, usize)> {
+        let centre = reference.zeta_ec.translation.vector;
+        let features: Vec<AlignFeature> = reference
+            .features
+            .iter()
+            .filter_map(|(px, _, pid)| {
+                let p = self.map.point(*pid)?;
+                let range = (p.p_e - centre).norm();
+                Some(AlignFeature {
+                    px: *px,
+                    p_ref: self.camera.back_project(px) * range,
+                })
+            })
+            .collect();
+        let t_cur_ref_guess = guess.inverse() * reference.zeta_ec;
+        let r = sparse_align(
+            &self.camera,
+            &reference.pyramid,
+            pyramid,
+            &features,
+            &t_cur_ref_guess,
+            &self.cfg.sparse_align,
+        )
+        .ok()?;
+        Some((reference.zeta_ec * r.t_cur_ref.inverse(), r.n_features))
+    }
+
+    /// The keyframe closest to `zeta_ec`, as a reference frame with its matched features.
+    fn closest_keyframe_frame(&self, zeta_ec: &Isometry3<f64>) -> Option<LastFrame> {
+        let centre = zeta_ec.translation.vector;
+        let kf = self.map.keyframes().min_by(|a, b| {
+            (a.centre_e() - centre)
+                .norm()
+                .total_cmp(&(b.centre_e() - centre).norm())
+        })?;
+        Some(LastFrame {
+            t_us: kf.t_us,
+            zeta_ec: kf.zeta_ec,
+            pyramid: kf.pyramid.clone(),
+            features: kf
+                .features
+                .iter()
+                .filter_map(|f| {
+                    let pid = f.point?;
+                    (self.map.point(pid)?.kind != PointKind::Candidate)
+                        .then_some((f.px, f.level, pid))
+                })
+                .collect(),
+        })
+    }
+
+    /// Steps 2–7 from the aligned pose. `Ok((pose, inlier matches, matched, rms, keyframe))`,
+    /// or `Err(matched)` on a tracking failure.
+    #[allow(clippy::type_complexity)]
+    fn track_from(
+        &mut self,
+        t_us: u64,
+        pyramid: &Arc<Pyramid>,
+        zeta_aligned: Isometry3<f64>,
+        last: &LastFrame,
+    ) -> Result<(Isometry3<f64>, Vec<FrameMatch>, usize, f64, bool), usize> {
+        let matches = self.reproject_and_match(pyramid, &zeta_aligned);
+        let n_matched = matches.len();
+        if n_matched < self.cfg.min_matches {
+            return Err(n_matched);
+        }
+        let observations: Vec<PoseObservation> = matches
+            .iter()
+            .filter_map(|m| {
+                Some(PoseObservation {
+                    p_e: self.map.point(m.point)?.p_e,
+                    px: m.px,
+                    level: m.level,
+                })
+            })
+            .collect();
+        // A plane seen through a narrow field of view has two poses that explain it almost
+        // equally (the tilt flip): sparse alignment, which stops at level 2, cannot tell them
+        // apart and may start the optimisation in the wrong basin. The constant-velocity
+        // prediction from the previous frames is a second start; the lower cost wins.
+        let starts =
+            std::iter::once(zeta_aligned).chain(self.last_motion.map(|m| last.zeta_ec * m));
+        let Some(opt) = starts
+            .filter_map(|start| {
+                optimize_pose(&self.camera, &start, &observations, &self.cfg.pose, None).ok()
+            })
+            .min_by(|a, b| a.final_cost_px.total_cmp(&b.final_cost_px))
+        else {
+            return Err(n_matched);
+        };
+        let inliers: Vec<FrameMatch> = matches
+            .iter()
+            .zip(&opt.inliers)
+            .filter(|(_, ok)| **ok)
+            .map(|(m, _)| *m)
+            .collect();
+        let zeta_ec = opt.zeta_ec;
+        // Quality (SVO: at least `min_matches`, no drop of more than `max_match_drop`).
+        let previous = last.features.len().min(self.cfg.max_matches);
+        if inliers.len() < self.cfg.min_matches
+            || previous.saturating_sub(inliers.len()) > self.cfg.max_match_drop
+        {
+            return Err(n_matched);
+        }
+        self.optimize_structure(&inliers);
+        let keyframe = self.needs_keyframe(&zeta_ec, &inliers);
+        self.update_seeds(pyramid, &zeta_ec);
+        if keyframe {
+            self.insert_keyframe(t_us, pyramid, &zeta_ec, &inliers);
+        }
+        Ok((zeta_ec, inliers, n_matched, opt.inlier_rms_px, keyframe))
+    }
+
+    /// Reprojection of the closest overlapping keyframes' points and of the candidates into
+    /// the grid, then one direct match per cell in the fixed random order.
+    fn reproject_and_match(
+        &mut self,
+        pyramid: &Pyramid,
+        zeta_ec: &Isometry3<f64>,
+    ) -> Vec<FrameMatch> {
+        let grid = *self.detector.grid();
+        let mut cells: Vec<Vec<(PointKind, PointId, Vector2<f64>)>> =
+            vec![Vec::new(); grid.n_cells()];
+        let keyframes =
+            self.map
+                .overlapping_keyframes(&self.camera, zeta_ec, self.cfg.reprojection_keyframes);
+        let mut seen = std::collections::BTreeSet::new();
+        let border = self.cfg.reprojection_border_px;
+        for kf_id in keyframes {
+            let Some(kf) = self.map.keyframe(kf_id) else {
+                continue;
+            };
+            for f in &kf.features {
+                let Some(pid) = f.point else { continue };
+                if !seen.insert(pid) {
+                    continue;
+                }
+                let Some(p) = self.map.point(pid) else {
+                    continue;
+                };
+                if p.kind == PointKind::Candidate {
+                    continue;
+                }
+                if let Some(px) = self.camera.project_ecef(zeta_ec, &p.p_e)
+                    && self.camera.contains(&px, border)
+                    && let Some(cell) = grid.cell_of(&px)
+                {
+                    cells[cell].push((p.kind, pid, px));
+                }
+            }
+        }
+        // Candidates: all of them; out of the image costs 3 failure units.
+        let candidates: Vec<PointId> = self
+            .map
+            .points()
+            .filter(|(_, p)| p.kind == PointKind::Candidate)
+            .map(|(id, _)| id)
+            .collect();
+        for pid in candidates {
+            let Some(p) = self.map.point(pid) else {
+                continue;
+            };
+            match self.camera.project_ecef(zeta_ec, &p.p_e) {
+                Some(px) if self.camera.contains(&px, border) => {
+                    if let Some(cell) = grid.cell_of(&px) {
+                        cells[cell].push((PointKind::Candidate, pid, px));
+                    }
+                }
+                _ => self.fail_point(pid, 3),
+            }
+        }
+        let mut matches = Vec::with_capacity(self.cfg.max_matches);
+        let order = std::mem::take(&mut self.cell_order);
+        for &cell in &order {
+            if matches.len() >= self.cfg.max_matches {
+                break;
+            }
+            let list = &mut cells[cell];
+            list.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)));
+            for (_, pid, px) in std::mem::take(list) {
+                match self.match_point(pid, &px, pyramid, zeta_ec) {
+                    Some(m) => {
+                        if let Some(p) = self.map.point_mut(pid) {
+                            p.successes += 1;
+                            if p.kind == PointKind::Unknown && p.successes > GOOD_AFTER_SUCCESSES {
+                                p.kind = PointKind::Good;
+                            }
+                        }
+                        matches.push(m);
+                        break;
+                    }
+                    None => self.fail_point(pid, 1),
+                }
+            }
+        }
+        self.cell_order = order;
+        matches
+    }
+
+    /// Count failure units against a point; delete it past its kind's limit.
+    fn fail_point(&mut self, pid: PointId, units: u32) {
+        let Some(p) = self.map.point_mut(pid) else {
+            return;
+        };
+        p.failures += units;
+        let delete = match p.kind {
+            PointKind::Unknown => p.failures > UNKNOWN_MAX_FAILURES,
+            PointKind::Candidate => p.failures > CANDIDATE_MAX_FAILURES,
+            PointKind::Good => false,
+        };
+        if delete {
+            self.map.remove_point(pid);
+        }
+    }
+
+    /// Direct match of one point from the keyframe observation closest in viewing angle.
+    fn match_point(
+        &self,
+        pid: PointId,
+        predicted_px: &Vector2<f64>,
+        pyramid: &Pyramid,
+        zeta_ec: &Isometry3<f64>,
+    ) -> Option<FrameMatch> {
+        let p = self.map.point(pid)?;
+        let view = (zeta_ec.translation.vector - p.p_e).normalize();
+        let (cos, kf, feature) = p
+            .observations
+            .iter()
+            .filter_map(|o| {
+                let kf = self.map.keyframe(o.keyframe)?;
+                let f = kf.features.get(o.feature)?;
+                let dir = (kf.centre_e() - p.p_e).normalize();
+                Some((dir.dot(&view), kf, f))
+            })
+            .max_by(|a, b| a.0.total_cmp(&b.0))?;
+        if cos < self.cfg.min_view_cos {
+            return None;
+        }
+        let range_m = (kf.centre_e() - p.p_e).norm();
+        let t_cur_ref = zeta_ec.inverse() * kf.zeta_ec;
+        let m = find_match_direct(
+            &self.camera,
+            &kf.pyramid,
+            &feature.px,
+            feature.level,
+            range_m,
+            &t_cur_ref,
+            pyramid,
+            predicted_px,
+        )?;
+        Some(FrameMatch {
+            point: pid,
+            px: m.px,
+            level: m.level,
+        })
+    }
+
+    /// Refine the least recently refined matched points over their keyframe observations.
+    fn optimize_structure(&mut self, matches: &[FrameMatch]) {
+        let mut order: Vec<(u64, PointId)> = matches
+            .iter()
+            .filter_map(|m| Some((self.map.point(m.point)?.last_structure_opt, m.point)))
+            .collect();
+        order.sort_unstable();
+        for &(_, pid) in order.iter().take(self.cfg.structure_points) {
+            let Some(p) = self.map.point(pid) else {
+                continue;
+            };
+            let observations: Vec<PointObservation> = p
+                .observations
+                .iter()
+                .filter_map(|o| {
+                    let kf = self.map.keyframe(o.keyframe)?;
+                    Some(PointObservation {
+                        zeta_ec: kf.zeta_ec,
+                        px: kf.features.get(o.feature)?.px,
+                    })
+                })
+                .collect();
+            let refined = optimize_point(
+                &self.camera,
+                &p.p_e,
+                &observations,
+                self.cfg.structure_iterations,
+            );
+            let frame_index = self.frame_index;
+            if let Some(p) = self.map.point_mut(pid) {
+                p.p_e = refined;
+                p.last_structure_opt = frame_index;
+            }
+        }
+    }
+
+    /// Median depth (camera z) of the matched points; `None` without points in front.
+    fn median_depth(&self, zeta_ec: &Isometry3<f64>, matches: &[FrameMatch]) -> Option<(f64, f64)> {
+        let depths: Vec<f64> = matches
+            .iter()
+            .filter_map(|m| {
+                let z = zeta_ec
+                    .inverse_transform_point(&self.map.point(m.point)?.p_e.into())
+                    .z;
+                (z > 0.0).then_some(z)
+            })
+            .collect();
+        let min = depths.iter().copied().fold(f64::INFINITY, f64::min);
+        (!depths.is_empty()).then(|| (median(depths), min))
+    }
+
+    /// SVO 1's keyframe rule: a new keyframe unless an overlapping keyframe is within
+    /// (1, 0.8, 1.3) × `keyframe_min_distance` × the median depth along the camera's axes.
+    fn needs_keyframe(&self, zeta_ec: &Isometry3<f64>, matches: &[FrameMatch]) -> bool {
+        let Some((depth, _)) = self.median_depth(zeta_ec, matches) else {
+            return false;
+        };
+        let d = self.cfg.keyframe_min_distance * depth;
+        let close = self
+            .map
+            .overlapping_keyframes(&self.camera, zeta_ec, self.cfg.reprojection_keyframes)
+            .into_iter()
+            .filter_map(|id| self.map.keyframe(id))
+            .any(|kf| {
+                let rel = zeta_ec.inverse_transform_point(&kf.centre_e().into());
+                rel.x.abs() < d && rel.y.abs() < 0.8 * d && rel.z.abs() < 1.3 * d
+            });
+        !close
+    }
+
+    /// Make the current frame a keyframe: observations of the matched points, candidates
+    /// promoted, new seeds on free cells, the map bounded.
+    fn insert_keyframe(
+        &mut self,
+        t_us: u64,
+        pyramid: &Arc<Pyramid>,
+        zeta_ec: &Isometry3<f64>,
+        matches: &[FrameMatch],
+    ) {
+        let Some((depth_median, depth_min)) = self.median_depth(zeta_ec, matches) else {
+            return;
+        };
+        if self.map.n_keyframes() >= self.cfg.max_keyframes
+            && let Some(far) = self.map.furthest_keyframe(&zeta_ec.translation.vector)
+        {
+            self.map.remove_keyframe(far);
+            self.seeds.retain(|s| s.keyframe != far);
+        }
+        let features: Vec<KeyframeFeature> = matches
+            .iter()
+            .map(|m| KeyframeFeature {
+                px: m.px,
+                level: m.level,
+                point: None,
+            })
+            .collect();
+        let id = self.map.add_keyframe(Keyframe {
+            id: 0,
+            t_us,
+            zeta_ec: *zeta_ec,
+            pyramid: pyramid.clone(),
+            features,
+        });
+        for (k, m) in matches.iter().enumerate() {
+            self.map.observe(
+                m.point,
+                Observation {
+                    keyframe: id,
+                    feature: k,
+                },
+            );
+            if let Some(p) = self.map.point_mut(m.point)
+                && p.kind == PointKind::Candidate
+            {
+                p.kind = PointKind::Unknown;
+                p.failures = 0;
+            }
+        }
+        // Seeds of keyframes older than the seed lifetime go.
+        let oldest = id.saturating_sub(self.cfg.seed_keyframes - 1);
+        self.seeds.retain(|s| s.keyframe >= oldest);
+        self.add_seeds(id, pyramid, zeta_ec, depth_median, depth_min);
+        self.counters.keyframes += 1;
+    }
+
+    /// Detect features on the keyframe's free cells and start a seed for each.
+    fn add_seeds(
+        &mut self,
+        id: KeyframeId,
+        pyramid: &Pyramid,
+        zeta_ec: &Isometry3<f64>,
+        depth_median_m: f64,
+        depth_min_m: f64,
+    ) {
+        let _ = zeta_ec;
+        let Some(kf) = self.map.keyframe(id) else {
+            return;
+        };
+        let mut occupancy = self.detector.empty_occupancy();
+        for f in &kf.features {
+            occupancy.occupy(&f.px);
+        }
+        let Ok(found) = self.detector.detect(pyramid, &occupancy) else {
+            return;
+        };
+        let Some(seed) = Seed::new(depth_median_m, depth_min_m) else {
+            return;
+        };
+        let Some(kf) = self.map.keyframe_mut(id) else {
+            return;
+        };
+        for f in found {
+            let feature = kf.features.len();
+            kf.features.push(KeyframeFeature {
+                px: f.px,
+                level: f.level,
+                point: None,
+            });
+            self.seeds.push(LiveSeed {
+                keyframe: id,
+                feature,
+                f_ref: self.camera.back_project(&f.px),
+                seed,
+            });
+        }
+    }
+
+    /// Update every live seed by epipolar search in the current frame; converged seeds become
+    /// candidates.
+    fn update_seeds(&mut self, pyramid: &Pyramid, zeta_ec: &Isometry3<f64>) {
+        let mut converged = Vec::new();
+        let mut keep = Vec::with_capacity(self.seeds.len());
+        for mut s in std::mem::take(&mut self.seeds) {
+            let Some(kf) = self.map.keyframe(s.keyframe) else {
+                continue;
+            };
+            let Some(feature) = kf.features.get(s.feature).copied() else {
+                continue;
+            };
+            let t_cur_ref = zeta_ec.inverse() * kf.zeta_ec;
+            // Below ~2 px of parallax a triangulation says nothing: wait for more baseline
+            // rather than count a miss.
+            let baseline_m = t_cur_ref.translation.vector.norm();
+            if baseline_m * self.camera.f_px() < MIN_SEED_PARALLAX_PX * s.seed.depth_m() {
+                keep.push(s);
+                continue;
+            }
+            // Predicted point in the current camera; skip if not visible.
+            let p_cur = t_cur_ref * nalgebra::Point3::from(s.f_ref * s.seed.depth_m());
+            if !self
+                .camera
+                .project(&p_cur.coords)
+                .is_some_and(|px| self.camera.contains(&px, 9.0))
+            {
+                keep.push(s);
+                continue;
+            }
+            let found = find_epipolar_match(
+                &self.camera,
+                &kf.pyramid,
+                &feature.px,
+                feature.level,
+                s.seed.depth_m(),
+                s.seed.search_depths_m(),
+                &t_cur_ref,
+                pyramid,
+            );
+            let Ok(m) = found else {
+                s.seed.miss();
+                keep.push(s);
+                continue;
+            };
+            let t_ref_cur = t_cur_ref.inverse().translation.vector;
+            let Some(tau2) =
+                inverse_depth_variance(&s.f_ref, m.range_m, &t_ref_cur, 1.0, self.camera.f_px())
+            else {
+                keep.push(s);
+                continue;
+            };
+            match s.seed.update(1.0 / m.range_m, tau2) {
+                SeedUpdate::Updated => keep.push(s),
+                SeedUpdate::Converged => converged.push(s),
+                SeedUpdate::Diverged => {}
+            }
+        }
+        self.seeds = keep;
+        for s in converged {
+            let Some(kf) = self.map.keyframe(s.keyframe) else {
+                continue;
+            };
+            let p_e = kf.zeta_ec * nalgebra::Point3::from(s.f_ref * s.seed.depth_m());
+            self.map.add_point(
+                p_e.coords,
+                PointKind::Candidate,
+                vec![Observation {
+                    keyframe: s.keyframe,
+                    feature: s.feature,
+                }],
+            );
+            self.counters.seeds_converged += 1;
+        }
+    }
+
+    fn output(
+        &self,
+        t_us: u64,
+        zeta_ec: Isometry3<f64>,
+        n_matched: usize,
+        n_inliers: usize,
+        rms: f64,
+        keyframe: bool,
+    ) -> VnsOutput {
+        VnsOutput {
+            t_us,
+            zeta_ec,
+            state: self.state,
+            n_matched,
+            n_inliers,
+            n_keyframes: self.map.n_keyframes(),
+            n_points: self.map.n_points(),
+            n_seeds: self.seeds.len(),
+            reprojection_rms_px: rms,
+            keyframe,
+        }
+    }
+}
+
+/// Median of a non-empty list (0 for an empty one).
+fn median(mut v: Vec<f64>) -> f64 {
+    if v.is_empty() {
+        return 0.0;
+    }
+    v.sort_by(f64::total_cmp);
+    let n = v.len();
+    if n % 2 == 1 {
+        v[n / 2]
+    } else {
+        0.5 * (v[n / 2 - 1] + v[n / 2])
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::math::wgs84::{Geodetic, geodetic_to_ecef, q_en};
+    use crate::vision::test_scene::{Ground, camera, nadir_pose};
+    use nalgebra::Translation3;
+
+    /// A VNS on a 384 × 512 camera (the paper's focal length) with 32-px cells: 192 cells as
+    /// on the full camera.
+    fn small_vns() -> (Camera, Vns) {
+        let cam = camera(384, 512);
+        let cfg = VnsConfig {
+            detector: DetectorConfig {
+                cell_size_px: 32,
+                ..DetectorConfig::default()
+            },
+            ..VnsConfig::default()
+        };
+        (cam, Vns::new(cam, cfg, 7).unwrap())
+    }
+
+    /// The local level frame of the scene (z down, on the ground plane) in ECEF.
+    fn zeta_ew() -> Isometry3<f64> {
+        let origin = Geodetic {
+            lat_rad: 0.606,
+            lon_rad: -1.556,
+            h_m: 150.0,
+        };
+        Isometry3::from_parts(
+            Translation3::from(geodetic_to_ecef(&origin)),
+            q_en(origin.lat_rad, origin.lon_rad),
+        )
+    }
+
+    /// Straight and level at 30 m/s, 1,000 m over the plane, with a slow gentle wobble in
+    /// roll and pitch (±0.6°).
+    fn pose_at(k: u64) -> Isometry3<f64> {
+        let t = k as f64 * 0.1;
+        let wobble = 0.01 * (0.3 * t).sin();
+        nadir_pose(
+            30.0 * t,
+            1.5 * t,
+            1_000.0,
+            [wobble, -0.7 * wobble, 0.002 * t],
+        )
+    }
+
+    /// Initialises from the first images (exact height) and tracks the first 3.5 s (105 m):
+    /// a pose that follows the truth, seeds converging into candidate points at the plane.
+    /// The tolerance: 1 % of the distance plus 2 m (the initial triangulation's ±1 px at
+    /// 1,000 m is ~1 m). Known limit, not hidden: on this perfect plane the pose later slides
+    /// into the plane's second (tilt-flipped) pose solution, about 120–140 m into the flight,
+    /// and the track is lost (docs/VNS.md, "Known problems").
+    #[test]
+    fn initialises_and_tracks_a_straight_flight_over_a_textured_plane() {
+        let (cam, mut vns) = small_vns();
+        let ground = Ground {
+            seed: 11,
+            ground_z_m: 0.0,
+        };
+        let zeta_ew = zeta_ew();
+        let mut first_tracked = None;
+        let mut worst_m: f64 = 0.0;
+        let mut worst_deg: f64 = 0.0;
+        for k in 0..35_u64 {
+            let pose_w = pose_at(k);
+            let frame = ground.frame(&cam, &pose_w, 1_000_000 + k * 100_000);
+            let truth = zeta_ew * pose_w;
+            let start = VnsStart {
+                zeta_ec: truth,
+                h_agl_m: -pose_w.translation.vector.z,
+            };
+            let out = vns.process(&frame, Some(&start)).unwrap();
+            let Some(out) = out else {
+                assert!(k < 40, "not initialised after {k} frames");
+                continue;
+            };
+            assert_eq!(out.state, VnsState::Tracking, "frame {k}: {out:?}");
+            first_tracked.get_or_insert(k);
+            let travelled = (pose_w.translation.vector - pose_at(0).translation.vector).norm();
+            let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
+            assert!(
+                err_m < 0.01 * travelled + 2.0,
+                "frame {k}: {err_m} m after {travelled} m"
+            );
+            worst_m = worst_m.max(err_m);
+            let err_deg = (out.zeta_ec.rotation.inverse() * truth.rotation)
+                .angle()
+                .to_degrees();
+            worst_deg = worst_deg.max(err_deg);
+            assert!(out.n_inliers >= 50, "frame {k}: {out:?}");
+        }
+        let c = vns.counters();
+        assert_eq!((c.initialisations, c.tracking_losses), (1, 0), "{c:?}");
+        assert!(first_tracked.is_some_and(|k| k < 25), "{first_tracked:?}");
+        // The two initialisation keyframes, and seeds of the second converged.
+        assert!(c.keyframes >= 2, "{c:?}");
+        assert!(c.seeds_converged > 20, "{c:?}");
+        assert!(worst_deg < 0.1, "attitude error {worst_deg}°");
+        eprintln!(
+            "first tracked frame {first_tracked:?}, worst {worst_m:.2} m, {worst_deg:.4}°, {c:?}"
+        );
+    }
+
+    /// A black frame loses the track (counted); the next real frame relocalises from the
+    /// last pose. Bad frames are rejected and counted, never a panic.
+    #[test]
+    fn a_lost_track_is_counted_and_relocalised_and_bad_frames_rejected() {
+        let (cam, mut vns) = small_vns();
+        let ground = Ground {
+            seed: 5,
+            ground_z_m: 0.0,
+        };
+        let zeta_ew = zeta_ew();
+        let mut t_us = 1_000_000;
+        let mut states = Vec::new();
+        for k in 0..33_u64 {
+            t_us += 100_000;
+            let pose_w = pose_at(k);
+            let frame = if k == 30 {
+                Frame {
+                    t_us,
+                    width: 384,
+                    height: 512,
+                    pixels: Arc::from(vec![0_u8; 384 * 512]),
+                }
+            } else {
+                ground.frame(&cam, &pose_w, t_us)
+            };
+            let start = VnsStart {
+                zeta_ec: zeta_ew * pose_w,
+                h_agl_m: 1_000.0,
+            };
+            if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
+                states.push((k, out.state));
+            }
+        }
+        let at = |k| states.iter().find(|(j, _)| *j == k).map(|(_, s)| *s);
+        assert_eq!(at(29), Some(VnsState::Tracking), "{states:?}");
+        assert_eq!(at(30), Some(VnsState::Relocalising));
+        assert_eq!(at(31), Some(VnsState::Tracking));
+        let c = *vns.counters();
+        assert_eq!((c.tracking_losses, c.relocalisations), (1, 1), "{c:?}");
+
+        // Wrong size, short buffer, a repeated time: errors, counted, state unchanged.
+        let bad = [
+            Frame {
+                t_us: t_us + 100_000,
+                width: 100,
+                height: 100,
+                pixels: Arc::from(vec![0_u8; 100 * 100]),
+            },
+            Frame {
+                t_us: t_us + 100_000,
+                width: 384,
+                height: 512,
+                pixels: Arc::from(vec![0_u8; 10]),
+            },
+            Frame {
+                t_us,
+                width: 384,
+                height: 512,
+                pixels: Arc::from(vec![0_u8; 384 * 512]),
+            },
+        ];
+        for f in &bad {
+            assert!(vns.process(f, None).is_err());
+        }
+        assert_eq!(vns.counters().bad_frames, 3);
+        assert_eq!(vns.state(), VnsState::Tracking);
+    }
+}
