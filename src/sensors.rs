@@ -113,6 +113,20 @@ pub struct Alignment {
     pub priors: SensorErrorPriors,
 }
 
+/// Height of the vehicle over the terrain below it (a rangefinder, a terrain model, or the
+/// simulator's truth with its drawn error): the scale of the visual navigation's two-view
+/// initialisation (paper, section "SVO": "requiring the height over the terrain to provide the
+/// scale").
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
+pub struct HeightAboveTerrain {
+    /// Time of validity, microseconds.
+    pub t_us: u64,
+    /// Height of the body origin over the terrain, m.
+    pub h_agl_m: f64,
+    /// Its standard deviation, m.
+    pub sigma_m: f64,
+}
+
 /// A grey-level camera frame (8 bits per pixel, row-major).
 #[derive(Debug, Clone, PartialEq)]
 pub struct Frame {
@@ -143,6 +157,8 @@ pub enum SensorEvent {
     Frame(Frame),
     /// A start alignment (boxed: it is rare and large).
     Alignment(Box<Alignment>),
+    /// Height over the terrain.
+    HeightAboveTerrain(HeightAboveTerrain),
 }
 
 impl SensorEvent {
@@ -156,6 +172,7 @@ impl SensorEvent {
             SensorEvent::RefAttitude(s) => s.t_us,
             SensorEvent::Frame(s) => s.t_us,
             SensorEvent::Alignment(s) => s.t_us,
+            SensorEvent::HeightAboveTerrain(s) => s.t_us,
         }
     }
 }

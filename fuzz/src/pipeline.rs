@@ -524,7 +524,7 @@ impl Pipeline {
             SensorEvent::Gnss(_) => Kind::Gnss,
             SensorEvent::Frame(_) => Kind::Frame,
             SensorEvent::RefAttitude(_) => Kind::RefAttitude,
-            SensorEvent::Alignment(_) => return Ok(()),
+            SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_) => return Ok(()),
         };
         if !self.gate.accept(kind, ev.t_us()) {
             self.stats.gated += 1;
@@ -574,9 +574,14 @@ impl Pipeline {
                 SensorEvent::Mag(_) => l.mag += 1,
                 SensorEvent::Gnss(_) => l.gnss += 1,
                 SensorEvent::RefAttitude(_) => l.ref_attitude += 1,
-                SensorEvent::Frame(_) | SensorEvent::Alignment(_) => {}
+                SensorEvent::Frame(_)
+                | SensorEvent::Alignment(_)
+                | SensorEvent::HeightAboveTerrain(_) => {}
             }
-        } else if !matches!(ev, SensorEvent::Alignment(_)) {
+        } else if !matches!(
+            ev,
+            SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_)
+        ) {
             self.pushed_before_init += 1;
         }
         match ev {
@@ -771,9 +776,10 @@ fn check_event(e: &SensorEvent) -> Result<(), Violation> {
                 "attitude event not a unit quaternion: {s:?}"
             )
         }
-        SensorEvent::Frame(_) | SensorEvent::Alignment(_) => {
+        SensorEvent::Frame(_) | SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_) => {
             return Err(Violation(
-                "camera frame or start alignment out of the MAVLink decoder: -".into(),
+                "camera frame, start alignment or terrain height out of the MAVLink decoder: -"
+                    .into(),
             ));
         }
     }

@@ -51,13 +51,21 @@ pub struct NseSample {
 
 /// Navigation errors of `estimate` against `truth`.
 pub fn nse(truth: &TruthSample, estimate: &NavEstimate) -> NseSample {
-    let euler_est = so3::euler_zyx(&estimate.q_nb);
+    nse_pose(truth, &estimate.pos, &estimate.q_nb)
+}
+
+/// Navigation errors of a position and attitude against `truth` (the VNS's pose has no
+/// velocity).
+pub fn nse_pose(
+    truth: &TruthSample,
+    pos: &ianav::math::wgs84::Geodetic,
+    q_nb: &nalgebra::UnitQuaternion<f64>,
+) -> NseSample {
+    let euler_est = so3::euler_zyx(q_nb);
     let euler_truth = so3::euler_zyx(&truth.q_nb);
     let d_euler_deg = (euler_est - euler_truth).map(|d| angle::wrap_pi(d).to_degrees());
-    let att_norm_deg = so3::log(&(truth.q_nb.inverse() * estimate.q_nb))
-        .norm()
-        .to_degrees();
-    let d_ned_m = wgs84::ned_difference_m(&truth.pos, &estimate.pos);
+    let att_norm_deg = so3::log(&(truth.q_nb.inverse() * q_nb)).norm().to_degrees();
+    let d_ned_m = wgs84::ned_difference_m(&truth.pos, pos);
     let hor_m = d_ned_m.x.hypot(d_ned_m.y);
     let hor_pct = if truth.distance_m >= MIN_DISTANCE_FOR_PERCENT_M {
         100.0 * hor_m / truth.distance_m
@@ -70,7 +78,7 @@ pub fn nse(truth: &TruthSample, estimate: &NavEstimate) -> NseSample {
         pitch_deg: d_euler_deg.y,
         bank_deg: d_euler_deg.z,
         att_norm_deg,
-        alt_m: estimate.pos.h_m - truth.pos.h_m,
+        alt_m: pos.h_m - truth.pos.h_m,
         hor_m,
         hor_pct,
         distance_m: truth.distance_m,
@@ -107,7 +115,8 @@ pub fn nees_horizontal_position(truth: &TruthSample, sol: &NavSolution) -> Optio
 }
 
 /// Observer collecting the NSE at mission times 0, 10, 20, … s (the first output sample at or
-/// after each grid time) and at the end of the flight.
+/// after each grid time) and at the end of the flight; with a camera, the VNS's too (NaN
+/// samples where it does not track: before its initialisation, while relocalising).
 #[derive(Debug, Clone)]
 pub struct MetricsRecorder {
     samples: Vec<NseSample>,
@@ -115,6 +124,26 @@ pub struct MetricsRecorder {
     next_t_s: f64,
     /// The latest pair seen, kept to record the final instant in [`MetricsRecorder::finish`].
     last: Option<(TruthSample, NavEstimate)>,
+    /// VNS samples on the same grid (empty without a camera).
+    vision_samples: Vec<NseSample>,
+    vision_next_t_s: f64,
+    /// The VNS sample of the latest output (NaN when not tracking).
+    vision_last: Option<NseSample>,
+}
+
+/// An NSE sample at `t_s` with every error NaN (the estimator had no solution then).
+pub fn missing_sample(t_s: f64, distance_m: f64) -> NseSample {
+    NseSample {
+        t_s,
+        yaw_deg: f64::NAN,
+        pitch_deg: f64::NAN,
+        bank_deg: f64::NAN,
+        att_norm_deg: f64::NAN,
+        alt_m: f64::NAN,
+        hor_m: f64::NAN,
+        hor_pct: f64::NAN,
+        distance_m,
+    }
 }
 
 impl Default for MetricsRecorder {
@@ -130,7 +159,22 @@ impl MetricsRecorder {
             samples: Vec::new(),
             next_t_s: 0.0,
             last: None,
+            vision_samples: Vec::new(),
+            vision_next_t_s: 0.0,
+            vision_last: None,
         }
+    }
+
+    /// The VNS samples (empty without a camera), completed like [`MetricsRecorder::finish`].
+    pub fn vision_samples(&self) -> Vec<NseSample> {
+        let mut v = self.vision_samples.clone();
+        if let Some(last) = self.vision_last {
+            let recorded_up_to = v.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
+            if last.t_s >= 0.0 && last.t_s > recorded_up_to + GRID_TOLERANCE_S {
+                v.push(last);
+            }
+        }
+        v
     }
 
     /// Samples recorded so far (without the final instant unless it fell on the grid).
@@ -161,6 +205,22 @@ impl FlightObserver for MetricsRecorder {
             self.next_t_s = k * SAMPLE_PERIOD_S;
         }
         self.last = Some((*truth, *estimate));
+    }
+
+    fn nav_solution(&mut self, truth: &TruthSample, sol: &NavSolution) {
+        if sol.vision.state == ianav::nav::VisionState::Inactive || truth.t_s < 0.0 {
+            return;
+        }
+        let sample = match sol.vision_fix.filter(|f| f.t_us == sol.t_us) {
+            Some(f) => nse_pose(truth, &f.pos, &f.q_nb),
+            None => missing_sample(truth.t_s, truth.distance_m),
+        };
+        if truth.t_s >= self.vision_next_t_s - GRID_TOLERANCE_S {
+            self.vision_samples.push(sample);
+            let k = (truth.t_s / SAMPLE_PERIOD_S + GRID_TOLERANCE_S).floor() + 1.0;
+            self.vision_next_t_s = k * SAMPLE_PERIOD_S;
+        }
+        self.vision_last = Some(sample);
     }
 }
 

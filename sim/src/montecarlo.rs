@@ -28,6 +28,9 @@ pub const RUN_FILE_MAGIC: &str = "# ianav-sim mc run v1";
 /// Column line of a completed run's samples.
 pub const RUN_COLUMNS: &str =
     "t_s,yaw_deg,pitch_deg,bank_deg,att_norm_deg,alt_m,hor_m,hor_pct,distance_m";
+/// Column line of a completed run's VNS samples (runs with a camera), after the INS samples.
+pub const RUN_VISION_COLUMNS: &str =
+    "vns_t_s,yaw_deg,pitch_deg,bank_deg,att_norm_deg,alt_m,hor_m,hor_pct,distance_m";
 /// Decimals of each column of [`RUN_COLUMNS`]: 1 ms, 1e-6° (far below the 0.01° the tables
 /// show), 0.1 mm, 1e-6 %, 1 mm.
 const RUN_DECIMALS: [usize; 9] = [3, 6, 6, 6, 6, 4, 4, 6, 3];
@@ -198,12 +201,28 @@ pub enum RunOutcome {
         distance_m: f64,
         /// Errors at 0, 10, 20, … s and at the end.
         samples: Vec<NseSample>,
+        /// The VNS's, with a camera.
+        vision: Option<VisionRun>,
     },
     /// The flight could not be set up, departed, or panicked.
     Failed {
         /// What happened (one line).
         reason: String,
     },
+}
+
+/// The VNS of a run: its errors on the INS's grid (NaN where it did not track) and its
+/// tracking losses.
+#[derive(Debug, Clone, PartialEq)]
+pub struct VisionRun {
+    /// Errors at 0, 10, 20, … s and at the end.
+    pub samples: Vec<NseSample>,
+    /// Successful two-view initialisations.
+    pub initialisations: u64,
+    /// Tracking losses.
+    pub tracking_losses: u64,
+    /// Successful relocalisations.
+    pub relocalisations: u64,
 }
 
 /// One run of a batch: the content of a run file.
@@ -268,27 +287,20 @@ impl RunRecord {
             RunOutcome::Completed {
                 distance_m,
                 samples,
+                vision,
             } => {
                 let _ = writeln!(t, "# status = completed");
                 let _ = writeln!(t, "# distance_m = {}", format_fixed(*distance_m, 3));
+                if let Some(v) = vision {
+                    let _ = writeln!(t, "# vision_initialisations = {}", v.initialisations);
+                    let _ = writeln!(t, "# vision_tracking_losses = {}", v.tracking_losses);
+                    let _ = writeln!(t, "# vision_relocalisations = {}", v.relocalisations);
+                }
                 let _ = writeln!(t, "{RUN_COLUMNS}");
-                for s in samples {
-                    let values = [
-                        s.t_s,
-                        s.yaw_deg,
-                        s.pitch_deg,
-                        s.bank_deg,
-                        s.att_norm_deg,
-                        s.alt_m,
-                        s.hor_m,
-                        s.hor_pct,
-                        s.distance_m,
-                    ];
-                    for (k, (v, d)) in values.iter().zip(RUN_DECIMALS).enumerate() {
-                        let sep = if k == 0 { "" } else { "," };
-                        let _ = write!(t, "{sep}{}", format_fixed(*v, d));
-                    }
-                    t.push('\n');
+                write_samples(&mut t, samples);
+                if let Some(v) = vision {
+                    let _ = writeln!(t, "{RUN_VISION_COLUMNS}");
+                    write_samples(&mut t, &v.samples);
                 }
             }
         }
@@ -305,6 +317,7 @@ impl RunRecord {
         let mut header: Vec<(String, String)> = Vec::new();
         let mut columns_seen = false;
         let mut samples = Vec::new();
+        let mut vision_samples: Option<Vec<NseSample>> = None;
         for (i, line) in lines {
             let at = |m: &str| format!("line {}: {m}", i + 1);
             if !columns_seen {
@@ -319,6 +332,10 @@ impl RunRecord {
                     return Err(at(&format!("expected the column line `{RUN_COLUMNS}`")));
                 }
                 columns_seen = true;
+                continue;
+            }
+            if line == RUN_VISION_COLUMNS && vision_samples.is_none() {
+                vision_samples = Some(Vec::new());
                 continue;
             }
             let v: Vec<f64> = line
@@ -340,7 +357,11 @@ impl RunRecord {
             else {
                 return Err(at(&format!("expected 9 values, got {}", v.len())));
             };
-            samples.push(NseSample {
+            let target = match vision_samples.as_mut() {
+                Some(v) => v,
+                None => &mut samples,
+            };
+            target.push(NseSample {
                 t_s,
                 yaw_deg,
                 pitch_deg,
@@ -375,9 +396,24 @@ impl RunRecord {
                 if !columns_seen {
                     return Err("completed run without the column line".into());
                 }
+                let count = |key: &str| -> Result<u64, String> {
+                    get(key)?
+                        .parse::<u64>()
+                        .map_err(|e| format!("header `{key}`: {e}"))
+                };
+                let vision = match vision_samples {
+                    Some(samples) => Some(VisionRun {
+                        samples,
+                        initialisations: count("vision_initialisations")?,
+                        tracking_losses: count("vision_tracking_losses")?,
+                        relocalisations: count("vision_relocalisations")?,
+                    }),
+                    None => None,
+                };
                 RunOutcome::Completed {
                     distance_m: num("distance_m")?,
                     samples,
+                    vision,
                 }
             }
             "failed" => RunOutcome::Failed {
@@ -400,18 +436,51 @@ impl RunRecord {
     }
 }
 
+/// One row per sample, every number at its fixed number of decimals.
+fn write_samples(t: &mut String, samples: &[NseSample]) {
+    for s in samples {
+        let values = [
+            s.t_s,
+            s.yaw_deg,
+            s.pitch_deg,
+            s.bank_deg,
+            s.att_norm_deg,
+            s.alt_m,
+            s.hor_m,
+            s.hor_pct,
+            s.distance_m,
+        ];
+        for (k, (v, d)) in values.iter().zip(RUN_DECIMALS).enumerate() {
+            let sep = if k == 0 { "" } else { "," };
+            let _ = write!(t, "{sep}{}", format_fixed(*v, d));
+        }
+        t.push('\n');
+    }
+}
+
 /// Fly `setup` with `seed`, recording its navigation errors. Setup errors, departures and
 /// panics become a failed run: one bad seed must not stop a batch of hundreds.
 pub fn fly(scenario: u8, setup: &FlightSetup, seed: u64) -> RunRecord {
     let result = catch_unwind(AssertUnwindSafe(|| {
         let mut recorder = MetricsRecorder::new();
-        let summary = Flight::new(setup, seed)?.run(&mut recorder, |_| {})?;
-        Ok::<_, crate::flight::FlightError>((summary.distance_m, recorder.finish()))
+        let mut flight = Flight::new(setup, seed)?;
+        let summary = flight.run(&mut recorder, |_| {})?;
+        let vision = flight
+            .navigator()
+            .and_then(|n| n.vns_counters())
+            .map(|c| VisionRun {
+                samples: recorder.vision_samples(),
+                initialisations: c.initialisations,
+                tracking_losses: c.tracking_losses,
+                relocalisations: c.relocalisations,
+            });
+        Ok::<_, crate::flight::FlightError>((summary.distance_m, recorder.finish(), vision))
     }));
     let outcome = match result {
-        Ok(Ok((distance_m, samples))) => RunOutcome::Completed {
+        Ok(Ok((distance_m, samples, vision))) => RunOutcome::Completed {
             distance_m,
             samples,
+            vision,
         },
         Ok(Err(e)) => RunOutcome::Failed {
             reason: e.to_string(),
@@ -688,6 +757,7 @@ mod tests {
             outcome: RunOutcome::Completed {
                 distance_m: 1234.5,
                 samples: vec![sample],
+                vision: None,
             },
         };
         let text = record.to_text();
@@ -706,7 +776,7 @@ mod tests {
             outcome: RunOutcome::Failed {
                 reason: "departed".into(),
             },
-            ..record
+            ..record.clone()
         };
         let back = RunRecord::parse(&failed.to_text()).unwrap();
         assert_eq!(
@@ -718,5 +788,43 @@ mod tests {
         assert!(RunRecord::parse("not a run file").is_err());
         let truncated = text.replace(RUN_COLUMNS, "t_s,yaw_deg");
         assert!(RunRecord::parse(&truncated).is_err());
+
+        // With the VNS: its samples (NaN where it did not track) and counters come back, and
+        // the INS samples stay the INS's.
+        let vns_sample = NseSample {
+            hor_m: 40.0,
+            ..sample
+        };
+        let with_vision = RunRecord {
+            outcome: RunOutcome::Completed {
+                distance_m: 1234.5,
+                samples: vec![sample],
+                vision: Some(VisionRun {
+                    samples: vec![crate::metrics::missing_sample(0.0, 0.0), vns_sample],
+                    initialisations: 1,
+                    tracking_losses: 3,
+                    relocalisations: 2,
+                }),
+            },
+            ..record
+        };
+        let text = with_vision.to_text();
+        let back = RunRecord::parse(&text).unwrap();
+        assert_eq!(back.to_text(), text);
+        let RunOutcome::Completed {
+            samples,
+            vision: Some(v),
+            ..
+        } = &back.outcome
+        else {
+            panic!("should be completed with the VNS")
+        };
+        assert_eq!((samples.len(), samples[0].hor_m), (1, 12.5));
+        assert_eq!((v.initialisations, v.tracking_losses, v.relocalisations), (1, 3, 2));
+        assert!(v.samples[0].att_norm_deg.is_nan());
+        assert_eq!(v.samples[1].hor_m, 40.0);
+        // A VNS section without its counters is an error, not a silent zero.
+        let no_counters = text.replace("# vision_tracking_losses = 3\n", "");
+        assert!(RunRecord::parse(&no_counters).is_err());
     }
 }

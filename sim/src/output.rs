@@ -12,7 +12,7 @@ use std::path::{Path, PathBuf};
 use ianav::io::sensor_log::SensorLogWriter;
 use ianav::math::so3;
 use ianav::math::wgs84::{self, Geodetic};
-use ianav::nav::NavSolution;
+use ianav::nav::{NavSolution, VisionState, VisionStatus};
 use ianav::sensors::SensorEvent;
 
 use crate::control::Operation;
@@ -47,6 +47,8 @@ pub mod files {
     pub const SENSORS: &str = "sensors.bin";
     /// INS solution, its errors against the truth and its σ (INS navigation only).
     pub const NAVIGATION: &str = "navigation.csv";
+    /// Visual navigation (VNS): state, tracking quality, pose and its errors (with a camera).
+    pub const VISION: &str = "vision.csv";
     /// Machine-readable summary.
     pub const SUMMARY: &str = "summary.toml";
     /// Human-readable report.
@@ -68,6 +70,12 @@ sigma_v_n_mps,sigma_v_e_mps,sigma_v_d_mps,sigma_n_m,sigma_e_m,sigma_d_m,wind_n_m
 true_wind_n_mps,true_wind_e_mps,tas_mps,true_tas_mps,delta_t_k,true_delta_t_k,delta_p_pa,\
 true_delta_p_pa,e_gyr_x_dps,e_gyr_y_dps,e_gyr_z_dps,p_dps,q_dps,r_dps,true_p_dps,true_q_dps,\
 true_r_dps,aoa_deg,true_aoa_deg,aos_deg,true_aos_deg,nees_att,nees_vel,gnss_nis";
+
+/// Columns of `vision.csv`: one row per output while the VNS runs; the pose and its errors
+/// (estimate − truth, as in `navigation.csv`) are empty unless it tracks at that instant.
+const VISION_HEADER: &str = "t_s,state,matched,inliers,keyframes,points,reproj_rms_px,lat_deg,\
+lon_deg,h_m,yaw_deg,pitch_deg,bank_deg,err_yaw_deg,err_pitch_deg,err_bank_deg,err_att_deg,\
+err_h_m,err_hor_m,err_hor_pct";
 
 /// One plot point kept every this many output samples (the CSV keeps every one), counted
 /// from mission time 0 so that the truth and INS points fall at the same instants.
@@ -96,6 +104,24 @@ struct NavPoint {
     gnss_denied: bool,
 }
 
+/// One VNS point per second of flight while it tracks.
+#[derive(Debug, Clone, Copy)]
+struct VisionPoint {
+    nse: metrics::NseSample,
+    pos: Geodetic,
+}
+
+/// Name of a vision state in `vision.csv` and the report.
+pub fn vision_state_name(state: VisionState) -> &'static str {
+    match state {
+        VisionState::Inactive => "inactive",
+        VisionState::WaitingForStart => "waiting",
+        VisionState::Initialising => "initialising",
+        VisionState::Tracking => "tracking",
+        VisionState::Relocalising => "relocalising",
+    }
+}
+
 /// Observer that writes a run directory as the flight goes (memory stays flat: the trajectory
 /// and samples stream to disk; only one plot point per second stays in memory).
 pub struct RunWriter {
@@ -119,6 +145,14 @@ pub struct RunWriter {
     plot: Vec<PlotPoint>,
     /// Truth outputs from mission time 0.
     samples_seen: usize,
+    /// Created at the first output with the VNS running.
+    vision: Option<BufWriter<File>>,
+    vision_points: Vec<VisionPoint>,
+    /// The last tracked VNS point and the last status.
+    vision_last: Option<VisionPoint>,
+    vision_status: Option<VisionStatus>,
+    /// Outputs with the VNS relocalising.
+    vision_relocalising_outputs: usize,
     operations: Vec<(f64, usize, Operation)>,
     line: String,
     first_error: Option<OutputError>,
@@ -186,6 +220,11 @@ impl RunWriter {
             ins_denied_s: None,
             plot: Vec::new(),
             samples_seen: 0,
+            vision: None,
+            vision_points: Vec::new(),
+            vision_last: None,
+            vision_status: None,
+            vision_relocalising_outputs: 0,
             operations: Vec::new(),
             line: String::with_capacity(512),
             first_error: None,
@@ -208,6 +247,10 @@ impl RunWriter {
         if let Some(mut nav) = self.navigation.take() {
             let flushed = nav.flush();
             self.keep_error(files::NAVIGATION, flushed);
+        }
+        if let Some(mut vision) = self.vision.take() {
+            let flushed = vision.flush();
+            self.keep_error(files::VISION, flushed);
         }
         if let Some(writer) = self.sensors.take() {
             let finished = writer.finish().map(|_| ());
@@ -270,6 +313,8 @@ impl RunWriter {
         };
         let track: Vec<(f64, f64)> = self.plot.iter().map(|p| to_km(&p.pos)).collect();
         let nav_track: Vec<(f64, f64)> = self.nav_points.iter().map(|p| to_km(&p.pos)).collect();
+        let vision_track: Vec<(f64, f64)> =
+            self.vision_points.iter().map(|p| to_km(&p.pos)).collect();
         let timed: Vec<(f64, (f64, f64))> = self
             .plot
             .iter()
@@ -296,6 +341,12 @@ impl RunWriter {
             track_series.push(Series {
                 dashed: true,
                 ..line("INS estimate", nav_track, 1)
+            });
+        }
+        if !vision_track.is_empty() {
+            track_series.push(Series {
+                dashed: true,
+                ..line("VNS estimate", vision_track, 3)
             });
         }
         let charts = [
@@ -394,7 +445,175 @@ impl RunWriter {
                 drawn.push((file, caption));
             }
         }
+        if !self.vision_points.is_empty() && !self.nav_points.is_empty() {
+            let ins = |f: fn(&metrics::NseSample) -> f64| -> Vec<(f64, f64)> {
+                self.nav_points
+                    .iter()
+                    .map(|p| (p.nse.t_s, f(&p.nse)))
+                    .collect()
+            };
+            let vns = |f: fn(&metrics::NseSample) -> f64| -> Vec<(f64, f64)> {
+                self.vision_points
+                    .iter()
+                    .map(|p| (p.nse.t_s, f(&p.nse)))
+                    .collect()
+            };
+            let pair = |what: &str, f: fn(&metrics::NseSample) -> f64, k: usize| {
+                [
+                    line(&format!("INS {what}"), ins(f), k),
+                    Series {
+                        dashed: true,
+                        ..line(&format!("VNS {what}"), vns(f), k)
+                    },
+                ]
+            };
+            let vision_charts = [
+                (
+                    "vision_attitude_error.png",
+                    "INS and VNS attitude errors",
+                    time_chart(
+                        "Attitude error, INS (solid) and VNS (dashed)",
+                        "error [deg]",
+                        [
+                            pair("yaw", |e| e.yaw_deg, 0),
+                            pair("pitch", |e| e.pitch_deg, 1),
+                            pair("bank", |e| e.bank_deg, 2),
+                        ]
+                        .concat(),
+                    ),
+                ),
+                (
+                    "vision_position_error.png",
+                    "INS and VNS position errors",
+                    time_chart(
+                        "Position error, INS (solid) and VNS (dashed)",
+                        "error [m]",
+                        [
+                            pair("horizontal", |e| e.hor_m, 0),
+                            pair("altitude", |e| e.alt_m, 1),
+                        ]
+                        .concat(),
+                    ),
+                ),
+            ];
+            for (file, caption, chart) in vision_charts {
+                plots::draw(&self.dir.join(file), &chart, 900, 560)?;
+                drawn.push((file, caption));
+            }
+        }
         Ok(drawn)
+    }
+
+    /// The VNS section: its last state and the final errors beside the INS's.
+    fn vision_report(&self, r: &mut String, status: &VisionStatus) {
+        let _ = writeln!(
+            r,
+            "\n## Visual navigation (VNS)\n\nThe paper's VNS: semi-direct visual odometry from the images and the initial estimate at its first image only. Last state: {}; {} outputs relocalising.\n",
+            vision_state_name(status.state),
+            self.vision_relocalising_outputs
+        );
+        let (Some(v), Some(i)) = (self.vision_last, self.nav_last) else {
+            let _ = writeln!(r, "The VNS never tracked.");
+            return;
+        };
+        let _ = writeln!(
+            r,
+            "| at t = {:.1} s | yaw [deg] | pitch [deg] | bank [deg] | attitude norm [deg] | altitude [m] | horizontal [m] | horizontal [% of distance] |\n|---|---|---|---|---|---|---|---|",
+            v.nse.t_s
+        );
+        for (name, e) in [("VNS (last tracked)", v.nse), ("INS (end)", i.nse)] {
+            let _ = writeln!(
+                r,
+                "| {name} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {:.1} | {} |",
+                e.yaw_deg,
+                e.pitch_deg,
+                e.bank_deg,
+                e.att_norm_deg,
+                e.alt_m,
+                e.hor_m,
+                metrics::format_fixed(e.hor_pct, 2)
+            );
+        }
+    }
+
+    /// One `vision.csv` row (and plot point) for the solution of this output.
+    fn vision_row(&mut self, truth: &TruthSample, sol: &NavSolution) {
+        if self.vision.is_none() {
+            let path = self.dir.join(files::VISION);
+            match create(&path).and_then(|mut w| {
+                writeln!(w, "{VISION_HEADER}").map_err(|source| OutputError::Io {
+                    path: path.display().to_string(),
+                    source,
+                })?;
+                Ok(w)
+            }) {
+                Ok(w) => self.vision = Some(w),
+                Err(e) => {
+                    if self.first_error.is_none() {
+                        self.first_error = Some(e);
+                    }
+                    return;
+                }
+            }
+        }
+        let v = &sol.vision;
+        self.vision_status = Some(*v);
+        if v.state == VisionState::Relocalising {
+            self.vision_relocalising_outputs += 1;
+        }
+        self.line.clear();
+        let _ = write!(
+            self.line,
+            "{:.3},{},{},{},{},{},{}",
+            truth.t_s,
+            vision_state_name(v.state),
+            v.n_matched,
+            v.n_inliers,
+            v.n_keyframes,
+            v.n_points,
+            v.reprojection_rms_px
+                .map_or(String::new(), |r| format!("{r:.3}"))
+        );
+        let fix = sol.vision_fix.filter(|f| f.t_us == sol.t_us);
+        match fix {
+            Some(f) => {
+                let e = metrics::nse_pose(truth, &f.pos, &f.q_nb);
+                let euler_deg = so3::euler_zyx(&f.q_nb).map(f64::to_degrees);
+                let _ = write!(
+                    self.line,
+                    ",{:.9},{:.9},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{}",
+                    f.pos.lat_rad.to_degrees(),
+                    f.pos.lon_rad.to_degrees(),
+                    f.pos.h_m,
+                    euler_deg.x,
+                    euler_deg.y,
+                    euler_deg.z,
+                    e.yaw_deg,
+                    e.pitch_deg,
+                    e.bank_deg,
+                    e.att_norm_deg,
+                    e.alt_m,
+                    e.hor_m,
+                    metrics::format_fixed(e.hor_pct, 4)
+                );
+                let point = VisionPoint { nse: e, pos: f.pos };
+                self.vision_last = Some(point);
+                // The same instants as the INS points (decimated from mission time 0).
+                if truth.t_s >= 0.0
+                    && self
+                        .nav_samples_seen
+                        .saturating_sub(1)
+                        .is_multiple_of(PLOT_EVERY_N_SAMPLES)
+                {
+                    self.vision_points.push(point);
+                }
+            }
+            None => self.line.push_str(",,,,,,,,,,,,,"),
+        }
+        if let Some(w) = self.vision.as_mut() {
+            let result = writeln!(w, "{}", self.line);
+            self.keep_error(files::VISION, result);
+        }
     }
 
     fn report(&self, s: &FlightSummary, plots: &[(&str, &str)]) -> String {
@@ -489,6 +708,9 @@ impl RunWriter {
                     p.sigma_hor_m
                 );
             }
+        }
+        if let Some(status) = self.vision_status {
+            self.vision_report(&mut r, &status);
         }
         let _ = writeln!(r, "\n## Plots\n");
         for (file, caption) in plots {
@@ -758,6 +980,9 @@ impl FlightObserver for RunWriter {
             let result = writeln!(w, "{}", self.line);
             self.keep_error(files::NAVIGATION, result);
         }
+        if sol.vision.state != VisionState::Inactive {
+            self.vision_row(truth, sol);
+        }
     }
 
     fn operation_started(&mut self, t_s: f64, index: usize, operation: &Operation) {
@@ -769,6 +994,42 @@ impl FlightObserver for RunWriter {
 mod tests {
     use super::*;
     use crate::flight::{Flight, FlightSetup, NavigationMode};
+
+    /// A short camera flight over the urban zone: the VNS starts from the INS at its first
+    /// images, `vision.csv` holds its state every output and its pose with errors once it
+    /// tracks, and the report has its section.
+    #[test]
+    fn a_camera_flight_writes_the_vision_file_and_section() {
+        let dir = std::env::temp_dir().join(format!("ianav-output-vns-{}", std::process::id()));
+        let mut setup = FlightSetup::builtin(2).unwrap();
+        setup.navigation = NavigationMode::Ins;
+        setup.scenario.duration_s = 5.0;
+        let zone = crate::terrain::Zone::Urban;
+        let start = zone.start();
+        setup.scenario.start.lat_deg = start.lat_deg;
+        setup.scenario.start.lon_deg = start.lon_deg;
+        setup.camera = Some(crate::flight::CameraSetup::new(std::sync::Arc::new(
+            crate::terrain::Terrain::new(zone, 0),
+        )));
+        let mut writer = RunWriter::new(&dir, false).unwrap();
+        let summary = Flight::new(&setup, 1)
+            .unwrap()
+            .run(&mut writer, |_| {})
+            .unwrap();
+        let report = std::fs::read_to_string(writer.finish(&summary).unwrap()).unwrap();
+        assert!(report.contains("## Visual navigation (VNS)"), "{report}");
+        let csv = std::fs::read_to_string(dir.join(files::VISION)).unwrap();
+        let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+        assert!(rows.iter().all(|r| r.len() == 20), "{csv}");
+        let tracked: Vec<&Vec<&str>> = rows.iter().filter(|r| r[1] == "tracking").collect();
+        assert!(!tracked.is_empty(), "the VNS never tracked");
+        for r in &tracked {
+            // Started from the INS with GNSS: metres, not kilometres, from the truth.
+            let hor_m: f64 = r[18].parse().unwrap();
+            assert!(hor_m < 100.0, "{r:?}");
+        }
+        std::fs::remove_dir_all(&dir).unwrap();
+    }
 
     #[test]
     fn track_at_interpolates_inside_the_track_only() {

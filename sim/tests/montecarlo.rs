@@ -300,6 +300,7 @@ fn synthetic_run(seed: u64) -> RunRecord {
         outcome: RunOutcome::Completed {
             distance_m: 1500.0,
             samples,
+            vision: None,
         },
     }
 }

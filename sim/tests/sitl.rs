@@ -152,7 +152,10 @@ fn twin(setup: &FlightSetup) -> TwinFlight {
             SensorEvent::Air(s) => drop(tw.air.insert(s.t_us, s)),
             SensorEvent::Mag(s) => drop(tw.mag.insert(s.t_us, s)),
             SensorEvent::Gnss(s) => drop(tw.gnss.insert(s.t_us, s)),
-            SensorEvent::Frame(_) | SensorEvent::RefAttitude(_) | SensorEvent::Alignment(_) => {}
+            SensorEvent::Frame(_)
+            | SensorEvent::RefAttitude(_)
+            | SensorEvent::Alignment(_)
+            | SensorEvent::HeightAboveTerrain(_) => {}
         }
     }
     tw

@@ -56,7 +56,7 @@ pub const MAX_SOLUTION_AGE_US: u64 = 500_000;
 pub enum DaemonError {
     /// The navigation core could not be built.
     #[error("navigation: {0}")]
-    Nav(#[from] crate::ins::InsError),
+    Nav(#[from] crate::nav::NavError),
     /// The navigation thread could not be started or did not stop.
     #[error("navigation thread: {0}")]
     Thread(String),

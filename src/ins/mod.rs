@@ -246,6 +246,8 @@ impl Ins {
             }
             // Start alignments are the navigator's (`nav::policy`), not the running INS's.
             SensorEvent::Alignment(_) => None,
+            // The visual navigation's scale, not an INS input.
+            SensorEvent::HeightAboveTerrain(_) => None,
         }
     }
 

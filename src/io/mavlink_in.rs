@@ -405,7 +405,9 @@ impl InputDecoder {
                 SensorEvent::Mag(_) => self.counters.mag += 1,
                 SensorEvent::Gnss(_) => self.counters.gnss += 1,
                 SensorEvent::RefAttitude(_) => self.counters.attitude += 1,
-                SensorEvent::Frame(_) | SensorEvent::Alignment(_) => {}
+                SensorEvent::Frame(_)
+                | SensorEvent::Alignment(_)
+                | SensorEvent::HeightAboveTerrain(_) => {}
             }
         }
         out

@@ -18,7 +18,8 @@
 //!     σ (nT), three values each;
 //!   - 8 navigation configuration: `t_us` 0, then the navigator's settings (`nav::NavConfig`) as
 //!     UTF-8 TOML. Written once, right after the header, by the simulator and by `ianav run
-//!     --record`, so that `ianav replay` runs a log with the settings it was flown with.
+//!     --record`, so that `ianav replay` runs a log with the settings it was flown with;
+//!   - 9 height over the terrain: height (m), its σ (m).
 //!
 //! Readers skip record kinds they do not know (the length says how far), so the format can
 //! grow without breaking old readers.
@@ -30,8 +31,8 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 
 use crate::math::wgs84::Geodetic;
 use crate::sensors::{
-    AirSample, Alignment, Frame, GnssFix, ImuSample, MagSample, RefAttitude, SensorErrorPriors,
-    SensorEvent,
+    AirSample, Alignment, Frame, GnssFix, HeightAboveTerrain, ImuSample, MagSample, RefAttitude,
+    SensorErrorPriors, SensorEvent,
 };
 
 /// File magic.
@@ -49,6 +50,7 @@ const KIND_FRAME: u8 = 5;
 const KIND_REF_ATTITUDE: u8 = 6;
 const KIND_ALIGNMENT: u8 = 7;
 const KIND_NAV_CONFIG: u8 = 8;
+const KIND_HEIGHT_ABOVE_TERRAIN: u8 = 9;
 
 /// Errors reading a sensor log.
 #[derive(Debug, thiserror::Error)]
@@ -157,6 +159,10 @@ impl<W: Write> SensorLogWriter<W> {
                     put(v.as_slice());
                 }
                 KIND_ALIGNMENT
+            }
+            SensorEvent::HeightAboveTerrain(h) => {
+                put(&[h.h_agl_m, h.sigma_m]);
+                KIND_HEIGHT_ABOVE_TERRAIN
             }
         };
         let len = u32::try_from(self.payload.len())
@@ -370,6 +376,11 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
                 priors,
             }))
         }
+        KIND_HEIGHT_ABOVE_TERRAIN => SensorEvent::HeightAboveTerrain(HeightAboveTerrain {
+            t_us,
+            h_agl_m: c.f64()?,
+            sigma_m: c.f64()?,
+        }),
         _ => return None,
     };
     Some(event)
@@ -435,6 +446,11 @@ mod tests {
                     delta_b_n_sigma_nt: Vector3::repeat(10.0),
                 },
             })),
+            SensorEvent::HeightAboveTerrain(HeightAboveTerrain {
+                t_us: 1_100_000,
+                h_agl_m: 2_567.25,
+                sigma_m: 50.0,
+            }),
         ]
     }
 

@@ -2,8 +2,13 @@
 //! flow diagram"): one synchronous object fed timestamped [`SensorEvent`]s that returns fused
 //! [`NavSolution`]s. The simulator, the Monte Carlo, the SITL vehicle, the daemon and a replay
 //! all drive this type and nothing else of the core: it owns the INS, decides when to start
-//! and re-initialise it ([`policy`]), and (to come) the visual navigation, whose frames it
-//! already receives and counts.
+//! and re-initialise it ([`policy`]), and runs the visual navigation system
+//! ([`crate::vision::vns`]) on the camera's frames when a camera is fitted.
+//!
+//! The VNS is the paper's baseline: it starts from the INS pose and the height over the
+//! terrain at its first image (`x̊₀`) and never reads the INS afterwards. Its pose is reported
+//! beside the fused solution ([`NavSolution::vision_fix`]); the fused position stays the
+//! INS's.
 
 pub mod history;
 pub mod policy;
@@ -11,21 +16,47 @@ pub mod replay;
 pub mod solution;
 
 pub use policy::{StartKind, StartPolicy, StartRecord};
-pub use solution::{InsStatus, NavCovariance, NavSolution, PositionSource, VisionStatus};
+pub use solution::{
+    InsStatus, NavCovariance, NavSolution, PositionSource, VisionFix, VisionState, VisionStatus,
+};
 
 use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
-use crate::sensors::SensorEvent;
-use crate::vision::camera::{CameraConfig, Mounting};
+use crate::math::wgs84;
+use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent};
+use crate::vision::camera::{Camera, CameraConfig, CameraConfigError, Mounting};
+use crate::vision::vns::{Vns, VnsConfig, VnsCounters, VnsError, VnsOutput, VnsStart, VnsState};
 use history::{HistoryPose, PoseHistory};
+use nalgebra::{Isometry3, Vector3};
 use policy::{Running, StartState};
 
 /// Span of the INS pose history, µs: longer than any frame's age that is accepted.
 pub const POSE_HISTORY_US: u64 = 2_000_000;
 
+/// A height over the terrain older than this at a frame is not used to start the VNS, µs.
+pub const MAX_HEIGHT_AGE_US: u64 = 1_000_000;
+
+/// Seed of the VNS's grid-cell order (any fixed value: the order only has to be arbitrary).
+const VNS_CELL_ORDER_SEED: u64 = 0x5653_4f43_454c_4c53; // "VSOCELLS"
+
+/// Why a navigator could not be built.
+#[derive(Debug, thiserror::Error)]
+pub enum NavError {
+    /// The INS settings are invalid.
+    #[error(transparent)]
+    Ins(#[from] InsError),
+    /// The camera settings are invalid.
+    #[error("camera: {0}")]
+    Camera(#[from] CameraConfigError),
+    /// The visual navigation's settings are invalid.
+    #[error(transparent)]
+    Vision(#[from] VnsError),
+}
+
 /// The camera as the navigation knows it: intrinsics and the *estimated* mounting (the true
 /// one is the vehicle's, or the simulator's).
-#[derive(Debug, Clone, PartialEq)]
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
 pub struct NavCamera {
     /// Intrinsics.
     pub intrinsics: CameraConfig,
@@ -41,9 +72,8 @@ pub struct NavConfig {
     pub ins: InsConfig,
     /// When to start and re-initialise the INS.
     pub start: StartPolicy,
-    /// The down-looking camera, if one is fitted (not recorded yet: nothing in the core uses
-    /// it before the visual navigation).
-    #[serde(skip)]
+    /// The down-looking camera, if one is fitted: the visual navigation runs on its frames.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<NavCamera>,
     /// The time contract's reorder window, µs: a frame taken more than this before the newest
     /// IMU sample is rejected and counted (`frames_late`); one within it is navigated with the
@@ -78,6 +108,10 @@ pub struct NavigatorStats {
     pub frames: u64,
     /// Camera frames older than the reorder window, rejected.
     pub frames_late: u64,
+    /// Camera frames the visual navigation rejected (size, buffer, time order).
+    pub frames_rejected: u64,
+    /// Heights over the terrain rejected (non-finite, not positive).
+    pub heights_rejected: u64,
     /// (Re)initialisations.
     pub initialisations: u64,
     /// Starts the INS refused (an invalid initial state).
@@ -109,6 +143,12 @@ pub struct Navigator {
     imu_noisy: bool,
     /// The worst ratio when the IMU was last reported noisier than configured.
     imu_noisy_ratio: f64,
+    /// The visual navigation and the estimated camera mounting (with a camera).
+    vns: Option<(Vns, Isometry3<f64>)>,
+    vision: VisionStatus,
+    vision_fix: Option<VisionFix>,
+    /// The latest height over the terrain.
+    h_agl: Option<HeightAboveTerrain>,
 }
 
 /// A noisy IMU is reported again when its worst ratio grows by this factor.
@@ -116,8 +156,28 @@ pub const IMU_NOISE_ESCALATION: f64 = 2.0;
 
 impl Navigator {
     /// A navigator waiting for its first start. Fails on an invalid configuration.
-    pub fn new(cfg: &NavConfig) -> Result<Self, InsError> {
-        cfg.ins.validate()?;
+    pub fn new(cfg: &NavConfig) -> Result<Self, NavError> {
+        cfg.ins.validate().map_err(InsError::from)?;
+        let vns = match &cfg.camera {
+            Some(c) => {
+                let camera = Camera::from_config(&c.intrinsics)?;
+                // The CG is taken at the reference point: its offset (decimetres) is far below
+                // the visual navigation's resolution at flight heights.
+                let zeta_bc = c.mounting.zeta_bc(&Vector3::zeros());
+                Some((
+                    Vns::new(camera, VnsConfig::default(), VNS_CELL_ORDER_SEED)?,
+                    zeta_bc,
+                ))
+            }
+            None => None,
+        };
+        let vision = match vns {
+            Some(_) => VisionStatus {
+                state: VisionState::WaitingForStart,
+                ..VisionStatus::INACTIVE
+            },
+            None => VisionStatus::INACTIVE,
+        };
         Ok(Self {
             cfg: cfg.clone(),
             ins: None,
@@ -131,6 +191,10 @@ impl Navigator {
             imu_noise: ImuNoiseMonitor::default(),
             imu_noisy: false,
             imu_noisy_ratio: 0.0,
+            vns,
+            vision,
+            vision_fix: None,
+            h_agl: None,
         })
     }
 
@@ -185,6 +249,15 @@ impl Navigator {
                     return None;
                 }
                 self.stats.frames += 1;
+                self.navigate_frame(f);
+            }
+            SensorEvent::HeightAboveTerrain(h) => {
+                if h.h_agl_m.is_finite() && h.h_agl_m > 0.0 && h.sigma_m.is_finite() {
+                    self.h_agl = Some(*h);
+                } else {
+                    self.stats.heights_rejected += 1;
+                }
+                return None;
             }
             SensorEvent::Imu(s) => self.check_imu_noise(s),
             _ => {}
@@ -204,7 +277,7 @@ impl Navigator {
                 self.since_imu.push(event.clone());
             }
             SensorEvent::Imu(_) => self.since_imu.clear(),
-            SensorEvent::Gnss(_) | SensorEvent::Frame(_) => {}
+            SensorEvent::Gnss(_) | SensorEvent::Frame(_) | SensorEvent::HeightAboveTerrain(_) => {}
         }
         let Some(ins) = self.ins.as_mut() else {
             self.stats.events_before_init += 1;
@@ -218,7 +291,73 @@ impl Navigator {
             v_ned_mps: sol.v_ned_mps,
             q_nb: sol.q_nb,
         });
-        Some(NavSolution::from_ins(sol, self.reset_counter))
+        let mut nav = NavSolution::from_ins(sol, self.reset_counter);
+        nav.vision = self.vision;
+        nav.vision_fix = self.vision_fix;
+        Some(nav)
+    }
+
+    /// Run the VNS on a frame: its start estimate is the INS pose and the height over the
+    /// terrain at the frame's time (used only until it has initialised).
+    fn navigate_frame(&mut self, frame: &Frame) {
+        let start = self.vns_start(frame.t_us);
+        let Some((vns, zeta_bc)) = self.vns.as_mut() else {
+            return;
+        };
+        let zeta_bc = *zeta_bc;
+        match vns.process(frame, start.as_ref()) {
+            Ok(Some(out)) => {
+                self.vision = vision_status(&out);
+                self.vision_fix =
+                    (out.state == VnsState::Tracking).then(|| body_fix(&out, &zeta_bc));
+            }
+            Ok(None) => {
+                self.vision.state = vision_state(vns.state());
+                self.vision_fix = None;
+            }
+            Err(_) => self.stats.frames_rejected += 1,
+        }
+    }
+
+    /// `x̊₀` at `t_us`: the INS camera pose and the height over the terrain, when both are
+    /// known then.
+    fn vns_start(&self, t_us: u64) -> Option<VnsStart> {
+        let (vns, zeta_bc) = self.vns.as_ref()?;
+        if vns.state() != VnsState::WaitingForStart && vns.state() != VnsState::Initialising {
+            return None;
+        }
+        let h = self
+            .h_agl
+            .filter(|h| t_us.abs_diff(h.t_us) <= MAX_HEIGHT_AGE_US)?;
+        let pose = self.history.at(t_us)?;
+        let q_eb = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad) * pose.q_nb;
+        let zeta_eb = Isometry3::from_parts(
+            nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
+            q_eb,
+        );
+        // The camera's height over the terrain: the body's, less the lens's offset along the
+        // vertical (below the CG: higher up is smaller).
+        let zeta_ec = zeta_eb * zeta_bc;
+        let lens_down_m = (pose.q_nb * zeta_bc.translation.vector).z;
+        Some(VnsStart {
+            zeta_ec,
+            h_agl_m: h.h_agl_m - lens_down_m,
+        })
+    }
+
+    /// The visual navigation's state and latest frame.
+    pub fn vision(&self) -> &VisionStatus {
+        &self.vision
+    }
+
+    /// The visual navigation's latest pose (while it tracks).
+    pub fn vision_fix(&self) -> Option<&VisionFix> {
+        self.vision_fix.as_ref()
+    }
+
+    /// Counters of the visual navigation (with a camera).
+    pub fn vns_counters(&self) -> Option<&VnsCounters> {
+        self.vns.as_ref().map(|(v, _)| v.counters())
     }
 
     fn start_at(&mut self, record: StartRecord, init: &InsInit) {
@@ -279,6 +418,39 @@ impl Navigator {
     }
 }
 
+fn vision_state(state: VnsState) -> VisionState {
+    match state {
+        VnsState::WaitingForStart => VisionState::WaitingForStart,
+        VnsState::Initialising => VisionState::Initialising,
+        VnsState::Tracking => VisionState::Tracking,
+        VnsState::Relocalising => VisionState::Relocalising,
+    }
+}
+
+fn vision_status(out: &VnsOutput) -> VisionStatus {
+    let n = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+    VisionStatus {
+        state: vision_state(out.state),
+        n_matched: n(out.n_matched),
+        n_inliers: n(out.n_inliers),
+        n_keyframes: n(out.n_keyframes),
+        n_points: n(out.n_points),
+        reprojection_rms_px: Some(out.reprojection_rms_px).filter(|v| v.is_finite()),
+    }
+}
+
+/// The body pose of a visual camera pose: `zeta_eb = zeta_ec ⊗ zeta_bc*`.
+fn body_fix(out: &VnsOutput, zeta_bc: &Isometry3<f64>) -> VisionFix {
+    let zeta_eb = out.zeta_ec * zeta_bc.inverse();
+    let pos = wgs84::ecef_to_geodetic(&zeta_eb.translation.vector);
+    let q_ne = wgs84::q_en(pos.lat_rad, pos.lon_rad).inverse();
+    VisionFix {
+        t_us: out.t_us,
+        pos,
+        q_nb: q_ne * zeta_eb.rotation,
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;
@@ -328,8 +500,8 @@ mod tests {
         assert!(nav.push(&air(5_000)).is_none());
         let first = nav.push(&imu(10_000)).expect("solution after air + IMU");
         assert_eq!(
-            (first.reset_counter, first.vision),
-            (0, VisionStatus::Inactive)
+            (first.reset_counter, first.vision.state, first.vision_fix),
+            (0, VisionState::Inactive, None)
         );
         let next = nav.push(&imu(20_000)).expect("solution");
         assert_eq!(next.ins.t_us, 20_000);
@@ -369,6 +541,31 @@ mod tests {
         let ins = nav.ins_stats().unwrap();
         assert_eq!((ins.air.accepted, ins.gnss.accepted), (1, 1));
         assert_eq!(nav.stats().events_before_init, 102);
+    }
+
+    /// A non-finite or non-positive height over the terrain is counted and dropped; without a
+    /// camera frames are counted and the vision stays inactive.
+    #[test]
+    fn bad_heights_over_the_terrain_are_rejected() {
+        let mut nav = Navigator::new(&NavConfig::new(InsConfig::default(), 2026.5)).unwrap();
+        for h_agl_m in [f64::NAN, -5.0, 0.0, 2_500.0] {
+            nav.push(&SensorEvent::HeightAboveTerrain(HeightAboveTerrain {
+                t_us: 1_000,
+                h_agl_m,
+                sigma_m: 50.0,
+            }));
+        }
+        assert_eq!(nav.stats().heights_rejected, 3);
+        assert_eq!(nav.h_agl.map(|h| h.h_agl_m), Some(2_500.0));
+        nav.push(&SensorEvent::Frame(Frame {
+            t_us: 2_000,
+            width: 4,
+            height: 4,
+            pixels: std::sync::Arc::from(vec![0_u8; 16]),
+        }));
+        assert_eq!(nav.stats().frames, 1);
+        assert_eq!(nav.vision().state, VisionState::Inactive);
+        assert!(nav.vns_counters().is_none());
     }
 
     #[test]

@@ -147,7 +147,9 @@ impl StartState {
                 None
             }
             SensorEvent::Gnss(fix) => self.on_fix(policy, fix, running),
-            SensorEvent::Mag(_) | SensorEvent::Frame(_) => None,
+            SensorEvent::Mag(_) | SensorEvent::Frame(_) | SensorEvent::HeightAboveTerrain(_) => {
+                None
+            }
         }
     }
 

@@ -9,7 +9,7 @@ use std::fmt::Write as _;
 use std::io::{Read, Write};
 
 use super::{NavConfig, NavSolution, Navigator, NavigatorStats};
-use crate::ins::{InsError, InsStats};
+use crate::ins::InsStats;
 use crate::io::sensor_log::{SensorLogError, SensorLogReader};
 
 /// Columns of the solutions CSV: time, geodetic position (rad, m), NED velocity, attitude
@@ -31,7 +31,7 @@ pub enum ReplayError {
     Config(String),
     /// The settings are invalid.
     #[error(transparent)]
-    Ins(#[from] InsError),
+    Nav(#[from] super::NavError),
     /// Writing the output failed.
     #[error("writing the solutions: {0}")]
     Io(#[from] std::io::Error),

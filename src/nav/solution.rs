@@ -15,11 +15,60 @@ pub enum PositionSource {
     Ins,
 }
 
-/// What the visual navigation contributes to a solution.
+/// State of the visual navigation.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
-pub enum VisionStatus {
-    /// No visual navigation (frames are counted and dropped).
+pub enum VisionState {
+    /// No visual navigation (no camera; frames are counted and dropped).
     Inactive,
+    /// Waiting for a first image with an initial estimate (INS pose and height over the
+    /// terrain at its time).
+    WaitingForStart,
+    /// Tracking the first image's features until the two-view initialisation succeeds.
+    Initialising,
+    /// Tracking.
+    Tracking,
+    /// Tracking lost: relocalising against the closest keyframe.
+    Relocalising,
+}
+
+/// The visual navigation's state and the quality of its latest frame.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisionStatus {
+    /// State.
+    pub state: VisionState,
+    /// Features matched in the latest frame.
+    pub n_matched: u32,
+    /// Inliers of its pose optimisation.
+    pub n_inliers: u32,
+    /// Keyframes in the map.
+    pub n_keyframes: u32,
+    /// Points in the map (candidates included).
+    pub n_points: u32,
+    /// RMS reprojection error of the inliers, px (`None` when not tracking).
+    pub reprojection_rms_px: Option<f64>,
+}
+
+impl VisionStatus {
+    /// No visual navigation.
+    pub const INACTIVE: Self = Self {
+        state: VisionState::Inactive,
+        n_matched: 0,
+        n_inliers: 0,
+        n_keyframes: 0,
+        n_points: 0,
+        reprojection_rms_px: None,
+    };
+}
+
+/// The visual navigation's body pose at a frame (paper: `zeta_eb = zeta_ec ⊗ zeta_bc*`).
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisionFix {
+    /// The frame's exposure time, µs.
+    pub t_us: u64,
+    /// Geodetic position of the body origin.
+    pub pos: Geodetic,
+    /// Attitude, body to NED.
+    pub q_nb: UnitQuaternion<f64>,
 }
 
 /// State of the INS behind a solution.
@@ -63,6 +112,8 @@ pub struct NavSolution {
     pub ins_status: InsStatus,
     /// The visual navigation.
     pub vision: VisionStatus,
+    /// The visual navigation's latest pose (while it tracks).
+    pub vision_fix: Option<VisionFix>,
     /// Incremented at every re-initialisation: consumers must not difference positions across
     /// a change (MAVLink `reset_counter`).
     pub reset_counter: u8,
@@ -88,7 +139,8 @@ impl NavSolution {
                 gnss_denied: ins.gnss_denied,
                 imu_gap: ins.imu_gap,
             },
-            vision: VisionStatus::Inactive,
+            vision: VisionStatus::INACTIVE,
+            vision_fix: None,
             reset_counter,
             ins,
         }

@@ -305,7 +305,7 @@ impl Camera {
 }
 
 /// Body → camera rotation and lens position (`zeta_bc` without the CG offset).
-#[derive(Debug, Clone, Copy, PartialEq)]
+#[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 pub struct Mounting {
     /// Rotation `q_bc` (`v_b = q_bc * v_c`).
     pub q_bc: UnitQuaternion<f64>,

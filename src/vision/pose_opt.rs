@@ -8,8 +8,10 @@
 //!
 //! Choices where the paper is silent (docs/REFERENCES.md, SVO's defaults): residuals of a
 //! feature detected at pyramid level `L` count at `1/2^L` of their pixel size; Tukey's
-//! `k = 4.685` on the residual norm over a robust scale, `1.48 · median` of the initial norms,
-//! then 0.85 px from the fifth iteration; at most 10 iterations, stopping when the sum of
+//! `k = 4.685` on the residual norm over a robust scale, `1.48 · median` of the initial norms
+//! but never below 0.85 px (a start already within a fraction of a pixel would otherwise cut
+//! off observations a pixel away, below the alignment noise), then 0.85 px from the fifth
+//! iteration; at most 10 iterations, stopping when the sum of
 //! residual norms `E_RP` decreases by less than `min_cost_decrease_px` or the step is negligible,
 //! and returning to the previous pose if the weighted squared error grows; afterwards,
 //! observations off by more than 2 px (at their level) are outliers.
@@ -195,7 +197,10 @@ pub fn optimize_pose(
         });
     }
     let usable: Vec<PoseObservation> = observations.iter().filter(|o| finite(o)).copied().collect();
-    let initial_scale_px = (1.48 * median(initial_norms)).max(1e-3);
+    // Never below the fixed scale: a start already within a fraction of a pixel would
+    // otherwise give the first iterations a cut-off below the alignment noise, and they could
+    // not move the pose towards observations a pixel away (see the module doc).
+    let initial_scale_px = (1.48 * median(initial_norms)).max(cfg.fixed_scale_px);
     let mut zeta = *initial;
     let mut prev: Option<(Isometry3<f64>, f64, f64)> = None;
     let mut iterations = 0;

@@ -1,8 +1,8 @@
 //! Sparse model-based image alignment of semi-direct visual odometry (SVO; Forster, Pizzoli and
-//! Scaramuzza, ICRA 2014, eqs. 7–9; research note `svo.md` §4): the relative pose
+//! Scaramuzza, ICRA 2014, eqs. 7–9; docs/REFERENCES.md): the relative pose
 //! `t_cur_ref` (reference camera → current camera) that minimises the photometric error of
 //! 4 × 4 patches around reference features with known 3-D points, by inverse-compositional
-//! Gauss-Newton from a coarse pyramid level to a finer one (SVO 1: levels 4 → 2, 30 iterations
+//! Gauss-Newton (damped, see below) from a coarse pyramid level to a finer one (SVO 1: levels 4 → 2, 30 iterations
 //! per level, stop at max |Δ| ≤ 1e-6).
 //!
 //! # Residual, warp and update
@@ -34,9 +34,13 @@
 //!   interpolated reference image (one more pixel either side). A feature is used at a level only
 //!   if its reference patch plus a 1-px border lies inside the reference level image, and in an
 //!   iteration only if its projected patch plus a 1-px border lies inside the current one.
-//! - Gauss-Newton without robust weights; the cost is the mean squared residual over the patch
-//!   pixels used; if it rises from one iteration to the next the previous pose is restored and
-//!   the level ends. A non-finite or singular step also ends the level.
+//! - No robust weights; the cost is the mean squared residual over the patch pixels used.
+//!   Levenberg-Marquardt rather than SVO 1's Gauss-Newton that ends a level at the first rise of
+//!   the cost: a step that raises it is refused and the damping `λ` (on the unit-diagonal
+//!   scaled system) grows tenfold; an accepted step divides it by ten, down to pure
+//!   Gauss-Newton. On fine, noise-like textures (forest canopy) the coarse levels otherwise end
+//!   after one or two steps, before they converge. A level ends at `λ > 10⁴`, at the iteration
+//!   cap, or on a negligible step; a non-finite or singular step also ends it.
 //! - Levels with fewer than [`SparseAlignConfig::min_features`] usable features are skipped,
 //!   except the finest, where that is an error.
 //! - Patches, gradients and residuals are `f32` (grey levels are 8-bit), geometry and the normal
@@ -62,6 +66,11 @@ const PATCH_HALF: usize = 2;
 const REACH: f64 = 3.0;
 /// Side of the interpolated reference block (patch + 1-px border): offsets −3 … +2.
 const BLOCK: usize = PATCH_SIZE + 2;
+
+/// Smallest Levenberg-Marquardt damping (relative to the unit diagonal) before it drops to
+/// pure Gauss-Newton, and the largest before a level gives up.
+const LM_MIN_DAMPING: f64 = 1e-3;
+const LM_MAX_DAMPING: f64 = 1e4;
 
 /// Settings (SVO 1 defaults): levels 4 → 2, 30 iterations per level, stop when max |Δ| ≤ 1e-6.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -403,25 +412,37 @@ impl SparseAligner {
                 }
                 continue;
             }
-            let mut previous: Option<(Isometry3<f64>, f64)> = None;
+            // Levenberg-Marquardt: a step that raises the cost is refused and the damping
+            // grows; an accepted one lowers it (SVO 1 stops the level at the first rise, which
+            // on fine, noise-like textures ends the coarse levels before they converge).
+            let mut eval = self.evaluate(&cam_l, cur_img, &t);
+            if eval.n_features < needed || eval.mean_sq.is_nan() {
+                continue;
+            }
+            let mut lambda = 0.0_f64;
             for _ in 0..cfg.max_iterations {
-                let eval = self.evaluate(&cam_l, cur_img, &t);
-                let worse = |prev: f64| eval.mean_sq.is_nan() || eval.mean_sq > prev;
-                if eval.n_features < needed || previous.is_some_and(|(_, prev)| worse(prev)) {
-                    // The cost rose (or the features left the image): undo the last step.
-                    if let Some((before, _)) = previous {
-                        t = before;
-                    }
-                    break;
-                }
-                let Some(step) = solve(&eval.hessian, &eval.gradient) else {
+                let Some(step) = solve(&eval.hessian, &eval.gradient, lambda) else {
                     break;
                 };
                 iterations += 1;
-                previous = Some((t, eval.mean_sq));
-                t *= se3::exp(&step);
-                if step.amax() <= cfg.min_step {
-                    break;
+                let candidate = t * se3::exp(&step);
+                let next = self.evaluate(&cam_l, cur_img, &candidate);
+                if next.n_features >= needed && next.mean_sq <= eval.mean_sq {
+                    t = candidate;
+                    eval = next;
+                    lambda = if lambda < LM_MIN_DAMPING {
+                        0.0
+                    } else {
+                        0.1 * lambda
+                    };
+                    if step.amax() <= cfg.min_step {
+                        break;
+                    }
+                } else {
+                    lambda = (10.0 * lambda).max(LM_MIN_DAMPING);
+                    if lambda > LM_MAX_DAMPING {
+                        break;
+                    }
                 }
             }
         }
@@ -490,7 +511,7 @@ impl SparseAligner {
 /// The Gauss-Newton step `δ = −H⁻¹ g`, by Cholesky on `H` scaled to a unit diagonal (the
 /// translation and rotation columns differ by about the scene depth); `None` if `H` is not
 /// positive definite or the step is not finite.
-fn solve(hessian: &Matrix6<f64>, gradient: &Vector6<f64>) -> Option<Vector6<f64>> {
+fn solve(hessian: &Matrix6<f64>, gradient: &Vector6<f64>, lambda: f64) -> Option<Vector6<f64>> {
     let mut d = Vector6::zeros();
     for i in 0..6 {
         let hii = hessian[(i, i)];
@@ -499,7 +520,9 @@ fn solve(hessian: &Matrix6<f64>, gradient: &Vector6<f64>) -> Option<Vector6<f64>
         }
         d[i] = 1.0 / hii.sqrt();
     }
-    let scaled = Matrix6::from_fn(|i, j| hessian[(i, j)] * d[i] * d[j]);
+    // Scaled to a unit diagonal, so the damping `λ I` weighs every axis alike.
+    let scaled =
+        Matrix6::from_fn(|i, j| hessian[(i, j)] * d[i] * d[j]) + Matrix6::identity() * lambda;
     let y = scaled.cholesky()?.solve(&gradient.component_mul(&d));
     let step = -y.component_mul(&d);
     step.iter().all(|v| v.is_finite()).then_some(step)

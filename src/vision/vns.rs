@@ -222,6 +222,9 @@ struct LastFrame {
     pyramid: Arc<Pyramid>,
     /// Matched features: level-0 pixel, level, point.
     features: Vec<(Vector2<f64>, u32, PointId)>,
+    /// It was a keyframe (or a keyframe stood in for it): its feature count is not comparable
+    /// with a tracked frame's, so the next frame skips the drop test (as SVO Pro does).
+    keyframe: bool,
 }
 
 /// The first image of an initialisation and its tracks.
@@ -554,6 +557,7 @@ impl Vns {
             zeta_ec: zeta_ec2,
             pyramid,
             features: last_features,
+            keyframe: true,
         });
         Some(self.output(t_us, zeta_ec2, n, n, f64::NAN, true))
     }
@@ -573,9 +577,16 @@ impl Vns {
         } else {
             Some(last.clone())
         };
+        // The guess: the last pose moved on by the last inter-frame motion (constant
+        // velocity, beyond SVO 1's last pose: turbulence turns the camera by degrees per
+        // second, more than sparse alignment's coarse levels recover on fine textures).
+        let guess = match self.last_motion {
+            Some(m) if !relocalising => last.zeta_ec * m,
+            _ => last.zeta_ec,
+        };
         let aligned = reference
             .as_ref()
-            .and_then(|r| self.align(r, &pyramid, &last.zeta_ec));
+            .and_then(|r| self.align(r, &pyramid, &guess));
         let min_aligned = if relocalising {
             self.cfg.relocalise_min_tracked
         } else {
@@ -599,6 +610,7 @@ impl Vns {
                     zeta_ec,
                     pyramid,
                     features: matches.iter().map(|m| (m.px, m.level, m.point)).collect(),
+                    keyframe: keyframe || relocalising,
                 });
                 self.output(t_us, zeta_ec, n_matched, n_inliers, rms, keyframe)
             }
@@ -670,6 +682,7 @@ impl Vns {
                         .then_some((f.px, f.level, pid))
                 })
                 .collect(),
+            keyframe: true,
         })
     }
 
@@ -720,7 +733,11 @@ impl Vns {
             .collect();
         let zeta_ec = opt.zeta_ec;
         // Quality (SVO: at least `min_matches`, no drop of more than `max_match_drop`).
-        let previous = last.features.len().min(self.cfg.max_matches);
+        let previous = if last.keyframe {
+            0
+        } else {
+            last.features.len().min(self.cfg.max_matches)
+        };
         if inliers.len() < self.cfg.min_matches
             || previous.saturating_sub(inliers.len()) > self.cfg.max_match_drop
         {

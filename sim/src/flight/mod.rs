@@ -48,6 +48,10 @@ struct FlightCamera {
     mounting: MountingPair,
     steps_per_frame: u64,
     noise_seed: u64,
+    /// Error of the height over the terrain offered with each frame (drawn once), m.
+    h_agl_error_m: f64,
+    /// Its σ, m.
+    h_agl_sigma_m: f64,
 }
 
 /// A flight in progress.
@@ -320,24 +324,35 @@ impl Flight {
         {
             self.sample_sensors(&position, observer)?;
         }
+        if let Some(cam) = &self.camera
+            && k.is_multiple_of(cam.steps_per_frame)
+            && self.t_us() >= self.warmup_us
+        {
+            // The height over the terrain (with its drawn error) comes with every frame: the
+            // visual navigation takes it at the image it starts from. Frames go before the
+            // output of the same step, so that the output shows the visual pose of its instant.
+            let height = SensorEvent::HeightAboveTerrain(self.height_above_terrain(cam));
+            let frame = SensorEvent::Frame(self.render_frame(cam, k)?);
+            for event in [height, frame] {
+                self.sensor_events += 1;
+                observer.sensor_event(&event);
+                if let Some(nav) = self.nav.as_mut() {
+                    // No solution: neither steps the navigation.
+                    nav.push(&event);
+                }
+            }
+            // The solution of this step predates the frame: give it the frame's visual pose.
+            if let (Some(nav), Some(sol)) = (self.nav.as_ref(), self.nav_solution.as_mut()) {
+                sol.vision = *nav.vision();
+                sol.vision_fix = nav.vision_fix().copied();
+            }
+        }
         if k.is_multiple_of(self.steps_per_output) {
             let truth = self.truth_sample();
             observer.truth_sample(&truth);
             observer.estimate_sample(&truth, &self.estimate);
             if let Some(solution) = &self.nav_solution {
                 observer.nav_solution(&truth, solution);
-            }
-        }
-        if let Some(cam) = &self.camera
-            && k.is_multiple_of(cam.steps_per_frame)
-            && self.t_us() >= self.warmup_us
-        {
-            let frame = SensorEvent::Frame(self.render_frame(cam, k)?);
-            self.sensor_events += 1;
-            observer.sensor_event(&frame);
-            if let Some(nav) = self.nav.as_mut() {
-                // No solution: frames do not step the navigation.
-                nav.push(&frame);
             }
         }
         Ok(())

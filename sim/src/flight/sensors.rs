@@ -5,7 +5,7 @@
 
 use ianav::math::{so3, wgs84};
 use ianav::nav::NavSolution;
-use ianav::sensors::{Alignment, Frame, SensorErrorPriors, SensorEvent};
+use ianav::sensors::{Alignment, Frame, HeightAboveTerrain, SensorErrorPriors, SensorEvent};
 use nalgebra::Vector3;
 
 use super::{Flight, FlightCamera, FlightError, FlightObserver, PositionAid};
@@ -45,6 +45,16 @@ fn apply_position_aid(estimate: &mut NavEstimate, aid: &PositionAid, t_us: u64) 
 }
 
 impl Flight {
+    /// The height of the body over the terrain below it, with the flight's drawn error.
+    pub(super) fn height_above_terrain(&self, cam: &FlightCamera) -> HeightAboveTerrain {
+        let ground_m = cam.terrain.height_m(self.x.pos.lat_rad, self.x.pos.lon_rad);
+        HeightAboveTerrain {
+            t_us: self.t_us(),
+            h_agl_m: self.x.pos.h_m - ground_m + cam.h_agl_error_m,
+            sigma_m: cam.h_agl_sigma_m,
+        }
+    }
+
     /// The frame seen now from the true camera pose.
     pub(super) fn render_frame(&self, cam: &FlightCamera, k: u64) -> Result<Frame, FlightError> {
         let cg = self.aircraft.cg_from_reference_b_m(self.x.mass_kg);

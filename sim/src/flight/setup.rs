@@ -58,6 +58,9 @@ pub enum FlightError {
     /// The INS configuration or initialisation is invalid.
     #[error("ins: {0}")]
     Ins(#[from] ianav::ins::InsError),
+    /// The navigation core could not be built.
+    #[error("navigation: {0}")]
+    Nav(#[from] ianav::nav::NavError),
     /// The control configuration is invalid.
     #[error("control: {0}")]
     Control(#[from] crate::control::ControlConfigError),
@@ -125,6 +128,10 @@ pub struct PositionAid {
     pub lon_rad: f64,
 }
 
+/// σ of the height-over-terrain error of the visual navigation's initialisation, m (the
+/// authors' "initial height over terrain" error, 50 m · N(0, 1)).
+pub const H_AGL_SIGMA_M: f64 = 50.0;
+
 /// The down-looking camera and the terrain it sees; off unless set.
 #[derive(Debug, Clone)]
 pub struct CameraSetup {
@@ -138,6 +145,9 @@ pub struct CameraSetup {
     pub period_s: f64,
     /// Photometric options (noise-free by default).
     pub options: RenderOptions,
+    /// σ of the error of the height over the terrain offered to the visual navigation, m
+    /// (one draw per flight; the authors' 50 m, docs/REFERENCES.md).
+    pub h_agl_sigma_m: f64,
 }
 
 impl CameraSetup {
@@ -149,6 +159,7 @@ impl CameraSetup {
             mounting: MountingConfig::default(),
             period_s: 0.1,
             options: RenderOptions::default(),
+            h_agl_sigma_m: H_AGL_SIGMA_M,
         }
     }
 }
@@ -337,6 +348,9 @@ impl Flight {
                     mounting: crate::sensors::camera::draw_mounting(&c.mounting, seed),
                     steps_per_frame: steps_per("camera.period_s", c.period_s, step_s)?,
                     noise_seed: rand::Rng::next_u64(&mut rng::stream(seed, "camera_noise")),
+                    h_agl_error_m: c.h_agl_sigma_m
+                        * rng::normal(&mut rng::stream(seed, "height_over_terrain_error")),
+                    h_agl_sigma_m: c.h_agl_sigma_m,
                 })
             }
         };

@@ -468,7 +468,9 @@ impl Vehicle {
                     self.frames.push(f);
                 }
                 // The flight's sensors make none; the vehicle reports its own estimate.
-                SensorEvent::RefAttitude(_) | SensorEvent::Alignment(_) => {}
+                SensorEvent::RefAttitude(_)
+                | SensorEvent::Alignment(_)
+                | SensorEvent::HeightAboveTerrain(_) => {}
             }
         }
         self.collector.events = events;
