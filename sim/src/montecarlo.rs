@@ -820,7 +820,10 @@ mod tests {
             panic!("should be completed with the VNS")
         };
         assert_eq!((samples.len(), samples[0].hor_m), (1, 12.5));
-        assert_eq!((v.initialisations, v.tracking_losses, v.relocalisations), (1, 3, 2));
+        assert_eq!(
+            (v.initialisations, v.tracking_losses, v.relocalisations),
+            (1, 3, 2)
+        );
         assert!(v.samples[0].att_norm_deg.is_nan());
         assert_eq!(v.samples[1].hor_m, 40.0);
         // A VNS section without its counters is an error, not a silent zero.

@@ -1019,7 +1019,11 @@ mod tests {
         let report = std::fs::read_to_string(writer.finish(&summary).unwrap()).unwrap();
         assert!(report.contains("## Visual navigation (VNS)"), "{report}");
         let csv = std::fs::read_to_string(dir.join(files::VISION)).unwrap();
-        let rows: Vec<Vec<&str>> = csv.lines().skip(1).map(|l| l.split(',').collect()).collect();
+        let rows: Vec<Vec<&str>> = csv
+            .lines()
+            .skip(1)
+            .map(|l| l.split(',').collect())
+            .collect();
         assert!(rows.iter().all(|r| r.len() == 20), "{csv}");
         let tracked: Vec<&Vec<&str>> = rows.iter().filter(|r| r[1] == "tracking").collect();
         assert!(!tracked.is_empty(), "the VNS never tracked");
