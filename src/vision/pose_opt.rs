@@ -269,7 +269,7 @@ pub fn optimize_pose(
         });
     }
     Ok(PoseOptResult {
-        zeta_ec: zeta,
+        zeta_ec: se3::renormalized(&zeta),
         iterations,
         inliers,
         n_inliers,

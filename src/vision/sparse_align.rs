@@ -467,7 +467,7 @@ impl SparseAligner {
             });
         }
         Ok(SparseAlignResult {
-            t_cur_ref: t,
+            t_cur_ref: se3::renormalized(&t),
             n_features: eval.n_features,
             iterations,
             mean_sq_residual: eval.mean_sq,

@@ -39,7 +39,7 @@ use super::pose_opt::{PoseObservation, PoseOptConfig, optimize_pose};
 use super::pyramid::{Pyramid, PyramidError};
 use super::sparse_align::{AlignFeature, SparseAlignConfig, sparse_align};
 use super::structure_opt::{PointObservation, optimize_point};
-use crate::math::wgs84;
+use crate::math::{se3, wgs84};
 use crate::sensors::Frame;
 
 /// Settings of the VNS.
@@ -477,7 +477,7 @@ impl Vns {
             return None;
         };
         let metric = &two_view.metric;
-        let zeta_ec2 = zeta_ec1 * metric.zeta_c2c1.inverse();
+        let zeta_ec2 = se3::renormalized(&(zeta_ec1 * metric.zeta_c2c1.inverse()));
         // Keyframes 1 and 2 with the triangulated points.
         let mut f1 = Vec::with_capacity(metric.points.len());
         let mut f2 = Vec::with_capacity(metric.points.len());
@@ -581,7 +581,7 @@ impl Vns {
         // velocity, beyond SVO 1's last pose: turbulence turns the camera by degrees per
         // second, more than sparse alignment's coarse levels recover on fine textures).
         let guess = match self.last_motion {
-            Some(m) if !relocalising => last.zeta_ec * m,
+            Some(m) if !relocalising => se3::renormalized(&(last.zeta_ec * m)),
             _ => last.zeta_ec,
         };
         let aligned = reference
@@ -602,7 +602,8 @@ impl Vns {
                     self.counters.relocalisations += 1;
                 }
                 self.state = VnsState::Tracking;
-                self.last_motion = (!relocalising).then(|| last.zeta_ec.inverse() * zeta_ec);
+                self.last_motion =
+                    (!relocalising).then(|| se3::renormalized(&(last.zeta_ec.inverse() * zeta_ec)));
                 self.last_good = Some((t_us, zeta_ec));
                 let n_inliers = matches.len();
                 self.last = Some(LastFrame {
@@ -658,7 +659,10 @@ impl Vns {
             &self.cfg.sparse_align,
         )
         .ok()?;
-        Some((reference.zeta_ec * r.t_cur_ref.inverse(), r.n_features))
+        Some((
+            se3::renormalized(&(reference.zeta_ec * r.t_cur_ref.inverse())),
+            r.n_features,
+        ))
     }
 
     /// The keyframe closest to `zeta_ec`, as a reference frame with its matched features.
@@ -715,8 +719,10 @@ impl Vns {
         // equally (the tilt flip): sparse alignment, which stops at level 2, cannot tell them
         // apart and may start the optimisation in the wrong basin. The constant-velocity
         // prediction from the previous frames is a second start; the lower cost wins.
-        let starts =
-            std::iter::once(zeta_aligned).chain(self.last_motion.map(|m| last.zeta_ec * m));
+        let starts = std::iter::once(zeta_aligned).chain(
+            self.last_motion
+                .map(|m| se3::renormalized(&(last.zeta_ec * m))),
+        );
         let Some(opt) = starts
             .filter_map(|start| {
                 optimize_pose(&self.camera, &start, &observations, &self.cfg.pose, None).ok()
@@ -1224,14 +1230,15 @@ mod tests {
         )
     }
 
-    /// Initialises from the first images (exact height) and tracks the first 3.5 s (105 m):
-    /// a pose that follows the truth, seeds converging into candidate points at the plane.
-    /// The tolerance: 1 % of the distance plus 2 m (the initial triangulation's ±1 px at
-    /// 1,000 m is ~1 m). Known limit, not hidden: on this perfect plane the pose later slides
-    /// into the plane's second (tilt-flipped) pose solution, about 120–140 m into the flight,
-    /// and the track is lost (docs/VNS.md, "Known problems").
+    /// Tracks from the first images to the end over 25 s (750 m): a two-view initialisation
+    /// with the exact height, keyframes every 0.12 × 1,000 m, seeds converging into points,
+    /// and a pose that follows the truth. The tolerance: SVO's relative drift (the paper's VNS
+    /// ≈ 1–2 % of the distance over minutes) is far above what a noise-free plane gives; 1 %
+    /// of the distance plus 2 m (the initial triangulation's ±1 px at 1,000 m is ~1 m).
+    /// Without the renormalisation of the composed poses the quaternion's norm error grew
+    /// ×2.4 per frame and lost this track 120 m in.
     #[test]
-    fn initialises_and_tracks_a_straight_flight_over_a_textured_plane() {
+    fn tracks_a_straight_flight_over_a_textured_plane() {
         let (cam, mut vns) = small_vns();
         let ground = Ground {
             seed: 11,
@@ -1241,7 +1248,7 @@ mod tests {
         let mut first_tracked = None;
         let mut worst_m: f64 = 0.0;
         let mut worst_deg: f64 = 0.0;
-        for k in 0..35_u64 {
+        for k in 0..250_u64 {
             let pose_w = pose_at(k);
             let frame = ground.frame(&cam, &pose_w, 1_000_000 + k * 100_000);
             let truth = zeta_ew * pose_w;
@@ -1272,9 +1279,9 @@ mod tests {
         let c = vns.counters();
         assert_eq!((c.initialisations, c.tracking_losses), (1, 0), "{c:?}");
         assert!(first_tracked.is_some_and(|k| k < 25), "{first_tracked:?}");
-        // The two initialisation keyframes, and seeds of the second converged.
-        assert!(c.keyframes >= 2, "{c:?}");
-        assert!(c.seeds_converged > 20, "{c:?}");
+        // 750 m at one keyframe per ~100 m, and the seeds of the keyframes converged.
+        assert!(c.keyframes >= 6, "{c:?}");
+        assert!(c.seeds_converged > 50, "{c:?}");
         assert!(worst_deg < 0.1, "attitude error {worst_deg}°");
         eprintln!(
             "first tracked frame {first_tracked:?}, worst {worst_m:.2} m, {worst_deg:.4}°, {c:?}"
