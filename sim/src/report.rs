@@ -639,17 +639,19 @@ fn vision_section(
         .count();
     let _ = writeln!(
         md,
-        "## Visual navigation (VNS) beside the INS
-
-         The paper's VNS (semi-direct visual odometry fed with the images and the initial          estimate at its first image only) and the INS, on the same {} flights.          Tracking losses: {losses} in {runs_with_losses} runs ({relocalisations}          relocalisations); {never} runs never initialised; {} runs track at t_end and are          compared below.
-",
+        "## Visual navigation (VNS) beside the INS\n\n\
+         The paper's VNS (semi-direct visual odometry fed with the images and the initial \
+         estimate at its first image only) and the INS, on the same {} flights. \
+         Tracking losses: {losses} in {runs_with_losses} runs ({relocalisations} \
+         relocalisations); {never} runs never initialised; {} runs track at t_end and are \
+         compared below.\n",
         with_vision.len(),
         tracked.len()
     );
     if !tracked.is_empty() {
         let _ = writeln!(
             md,
-            "| error | unit | INS mean | INS std | INS largest | VNS mean | VNS std | VNS largest |
+            "| error | unit | INS mean | INS std | INS largest | VNS mean | VNS std | VNS largest |\n\
              |---|---|---|---|---|---|---|---|"
         );
         for m in &METRICS {

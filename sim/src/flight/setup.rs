@@ -148,6 +148,9 @@ pub struct CameraSetup {
     /// σ of the error of the height over the terrain offered to the visual navigation, m
     /// (one draw per flight; the authors' 50 m, docs/REFERENCES.md).
     pub h_agl_sigma_m: f64,
+    /// The flight's own navigator runs the visual navigation on the frames (off for the SITL
+    /// vehicle, whose frames are the daemon's to navigate on).
+    pub vision_navigation: bool,
 }
 
 impl CameraSetup {
@@ -160,6 +163,7 @@ impl CameraSetup {
             period_s: 0.1,
             options: RenderOptions::default(),
             h_agl_sigma_m: H_AGL_SIGMA_M,
+            vision_navigation: true,
         }
     }
 }
@@ -362,6 +366,7 @@ impl Flight {
                 cfg.camera = setup
                     .camera
                     .as_ref()
+                    .filter(|c| c.vision_navigation)
                     .zip(camera.as_ref())
                     .map(|(c, fc)| NavCamera {
                         intrinsics: c.camera,

@@ -329,6 +329,13 @@ pub fn unix_us_of_decimal_year(year: f64) -> u64 {
 impl Vehicle {
     /// The vehicle flying `setup` with `seed`.
     pub fn new(setup: &FlightSetup, seed: u64, cfg: VehicleConfig) -> Result<Self, FlightError> {
+        // The vehicle's frames are the daemon's to navigate on: its own navigator (what
+        // guidance flies on) runs the INS only.
+        let mut setup = setup.clone();
+        if let Some(camera) = setup.camera.as_mut() {
+            camera.vision_navigation = false;
+        }
+        let setup = &setup;
         let flight = Flight::new(setup, seed)?;
         let gnss_period_us = (setup.sensors.gnss.period_s * 1e6).round().max(1.0) as u64;
         Ok(Self {
