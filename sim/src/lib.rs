@@ -16,3 +16,4 @@ pub mod scenario;
 pub mod sensors;
 pub mod sitl;
 pub mod terrain;
+pub mod vns_timing;

@@ -101,6 +101,13 @@ enum Command {
         #[command(flatten)]
         fly: FlyArgs,
     },
+    /// Time the visual navigation per frame over a camera flight (--terrain ZONE): a
+    /// navigator of its own takes the flight's sensor events and each frame's handling is
+    /// timed on one thread (no output files).
+    BenchVns {
+        #[command(flatten)]
+        fly: FlyArgs,
+    },
     /// Fly a Monte Carlo batch (or one shard of it) and write one metrics file per run.
     Mc(McArgs),
     /// Render one down-looking camera image of a terrain zone (8-bit grey PNG).
@@ -144,6 +151,10 @@ struct McArgs {
     /// Output directory (created if missing): `runs/run_NNNN.csv` and the manifest.
     #[arg(long)]
     out: PathBuf,
+    /// Keep the run files of this batch already in `--out` and fly only the missing seeds
+    /// (an interrupted batch goes on; runs are deterministic, so the files are the same).
+    #[arg(long)]
+    resume: bool,
 }
 
 /// Autopilot imitated by `sitl` (`--autopilot`).
@@ -260,6 +271,7 @@ fn main() -> Result<()> {
             every,
         } => cmd::run::run(fly, out, *no_sensor_log, frames.as_ref(), *every),
         Command::Bench { fly } => cmd::bench::bench(fly),
+        Command::BenchVns { fly } => cmd::bench::bench_vns(fly),
         Command::Mc(args) => cmd::mc::mc(args),
         Command::Render(args) => cmd::render::render(args),
         Command::Sitl(args) => cmd::sitl::sitl(args),

@@ -519,6 +519,12 @@ pub struct Batch {
     pub shard: Option<Shard>,
     /// Worker threads (all cores if `None`).
     pub jobs: Option<usize>,
+    /// Keep the run files already in the output directory that hold a run of this batch
+    /// (same scenario, navigation, duration and seed, with or without the vision block as
+    /// the batch has a camera or not) instead of flying their seeds again: an interrupted
+    /// batch goes on where it stopped. Runs are deterministic, so a kept file is the file
+    /// flying the seed again would write.
+    pub resume: bool,
 }
 
 impl Batch {
@@ -528,6 +534,22 @@ impl Batch {
             Some(shard) => shard.select(&self.seeds),
             None => self.seeds.clone(),
         }
+    }
+
+    /// The run of `seed` already at `path`, if it is a run of this batch (see
+    /// [`Batch::resume`]); anything else (missing, unreadable, another set-up) is flown again.
+    fn kept_run(&self, path: &Path, seed: u64) -> Option<RunRecord> {
+        let record = RunRecord::parse(&std::fs::read_to_string(path).ok()?).ok()?;
+        let same_vision = match &record.outcome {
+            RunOutcome::Completed { vision, .. } => vision.is_some() == self.setup.camera.is_some(),
+            RunOutcome::Failed { .. } => true,
+        };
+        (record.seed == seed
+            && record.scenario == self.scenario
+            && record.navigation == self.setup.navigation
+            && (record.duration_s - self.setup.scenario.duration_s).abs() < 5e-4
+            && same_vision)
+            .then_some(record)
     }
 
     /// Manifest file name: `mc.toml`, or `mc_shard_2of4.toml` for a shard (shards may share
@@ -654,9 +676,15 @@ pub fn run_batch_with(
         seeds
             .par_iter()
             .map(|&seed| {
-                let record = fly_seed(seed);
-                let path = runs_dir.join(run_file_name(record.seed));
-                write_atomic(&path, &record.to_text())?;
+                let path = runs_dir.join(run_file_name(seed));
+                let record = match batch.resume.then(|| batch.kept_run(&path, seed)).flatten() {
+                    Some(kept) => kept,
+                    None => {
+                        let record = fly_seed(seed);
+                        write_atomic(&path, &record.to_text())?;
+                        record
+                    }
+                };
                 on_done(&record);
                 Ok(match record.outcome {
                     RunOutcome::Completed { .. } => None,

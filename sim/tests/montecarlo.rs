@@ -217,6 +217,7 @@ fn batch(seeds: Vec<u64>, shard: Option<Shard>) -> Batch {
         seeds,
         shard,
         jobs: Some(2),
+        resume: false,
     }
 }
 
@@ -410,6 +411,48 @@ fn a_departed_run_is_reported_not_fatal() {
     );
     assert!(text.contains("| 2 | flight departed"), "{text}");
     assert!(text.contains("over the 2 completed runs"), "{text}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `resume` keeps the runs of the batch already written (an interrupted batch goes on), flies
+/// the missing ones and anything that is not a run of this batch, and ends with the same files
+/// as a batch flown in one go.
+#[test]
+fn a_resumed_batch_flies_only_what_is_missing() {
+    let dir = temp_dir("resume");
+    let (whole, resumed) = (dir.join("whole"), dir.join("resumed"));
+    montecarlo::run_batch(&batch(vec![1, 2, 3], None), &whole, |_| {}).unwrap();
+    // Interrupted after seed 1; seed 3's file is from another duration.
+    montecarlo::run_batch(
+        &batch(vec![1, 2, 3], Some("1/3".parse().unwrap())),
+        &resumed,
+        |_| {},
+    )
+    .unwrap();
+    let mut other = batch(vec![1, 2, 3], Some("3/3".parse().unwrap()));
+    other.setup.scenario.duration_s = SHORT_DURATION_S - 1.0;
+    montecarlo::run_batch(&other, &resumed, |_| {}).unwrap();
+    for shard in ["mc_shard_1of3.toml", "mc_shard_3of3.toml"] {
+        std::fs::remove_file(resumed.join(shard)).unwrap();
+    }
+    let mut again = batch(vec![1, 2, 3], None);
+    again.resume = true;
+    let flown = std::sync::Mutex::new(Vec::new());
+    let summary = montecarlo::run_batch_with(
+        &again,
+        &resumed,
+        |seed| {
+            flown.lock().unwrap().push(seed);
+            montecarlo::fly(2, &again.setup, seed)
+        },
+        |_| {},
+    )
+    .unwrap();
+    let mut flown = flown.into_inner().unwrap();
+    flown.sort_unstable();
+    assert_eq!(flown, vec![2, 3]);
+    assert_eq!(summary.manifest.completed, 3);
+    assert_eq!(files_under(&whole), files_under(&resumed));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

@@ -11,7 +11,7 @@
 use nalgebra::{Matrix2, Vector2};
 
 use super::camera::Camera;
-use super::pyramid::{Pyramid, interpolate, interpolate_with_gradient};
+use super::pyramid::{Pyramid, bilinear_at, bilinear_axis, interpolate_with_gradient};
 
 /// Half-width of the window per level, px: 31 × 31 at level 0, smaller at the coarse levels
 /// so that features near the border keep them (the coarse levels only bring the estimate
@@ -114,14 +114,28 @@ fn template(first: &Pyramid, px0: &Vector2<f64>, level: u32) -> Option<LevelTemp
 
 /// Inverse-compositional translation alignment of one level's template in `img`, from
 /// `start` (that level's pixels).
+///
+/// Every window pixel sits a whole number of pixels from `p`, so the bilinear look-ups share
+/// one column stencil per column and one row stencil per row: computed once per iteration,
+/// they give the same samples as per-pixel [`interpolate`](super::pyramid::interpolate) calls,
+/// bit for bit.
 fn align(img: &image::GrayImage, t: &LevelTemplate, start: Vector2<f64>) -> Option<Vector2<f64>> {
+    let (w, h) = img.dimensions();
+    let pixels = img.as_raw();
+    let mut columns = Vec::with_capacity((2 * t.half + 1) as usize);
     let mut p = start;
     for _ in 0..MAX_ITERATIONS {
+        columns.clear();
+        for dx in -t.half..=t.half {
+            columns.push(bilinear_axis(p.x + f64::from(dx), w)?);
+        }
         let mut b = Vector2::zeros();
         let mut k = 0;
         for dy in -t.half..=t.half {
-            for dx in -t.half..=t.half {
-                let v = interpolate(img, p.x + f64::from(dx), p.y + f64::from(dy))?;
+            let (y0, fv) = bilinear_axis(p.y + f64::from(dy), h)?;
+            let row = y0 * w as usize;
+            for &(x0, fu) in &columns {
+                let v = bilinear_at(pixels, w as usize, row + x0, fu, fv);
                 let r = f64::from(v - t.values[k]);
                 let g = t.grad[k];
                 b += Vector2::new(f64::from(g[0]), f64::from(g[1])) * r;
@@ -176,6 +190,75 @@ mod tests {
             }
         }
         assert!(tracked >= 25, "{tracked}");
+    }
+
+    /// The per-pixel alignment the shared stencils replace.
+    fn align_per_pixel(
+        img: &image::GrayImage,
+        t: &LevelTemplate,
+        start: Vector2<f64>,
+    ) -> Option<Vector2<f64>> {
+        let mut p = start;
+        for _ in 0..MAX_ITERATIONS {
+            let mut b = Vector2::zeros();
+            let mut k = 0;
+            for dy in -t.half..=t.half {
+                for dx in -t.half..=t.half {
+                    let v = crate::vision::pyramid::interpolate(
+                        img,
+                        p.x + f64::from(dx),
+                        p.y + f64::from(dy),
+                    )?;
+                    let g = t.grad[k];
+                    b +=
+                        Vector2::new(f64::from(g[0]), f64::from(g[1])) * f64::from(v - t.values[k]);
+                    k += 1;
+                }
+            }
+            let step = -(t.h_inv * b);
+            if !step.iter().all(|v| v.is_finite()) {
+                return None;
+            }
+            p += step;
+            if step.norm() < CONVERGED_PX {
+                return Some(p);
+            }
+        }
+        None
+    }
+
+    /// Shared row and column stencils give the per-pixel look-ups' result bit for bit, from
+    /// starts inside, near the border of and outside the image.
+    #[test]
+    fn shared_stencils_match_per_pixel_lookups() {
+        let cam = camera(256, 320);
+        let ground = Ground {
+            seed: 4,
+            ground_z_m: 0.0,
+        };
+        let first = ground.pyramid(&cam, &nadir_pose(0.0, 0.0, 1_000.0, [0.0; 3]));
+        let moved = ground.pyramid(&cam, &nadir_pose(6.0, -3.0, 1_000.0, [0.002, 0.0, 0.01]));
+        let mut rng = crate::vision::test_scene::SplitMix(17);
+        let mut compared = 0;
+        for _ in 0..60 {
+            let px0 = Vector2::new(340.0 * rng.unit() - 10.0, 276.0 * rng.unit() - 10.0);
+            let f = KltFeature::new(&first, &px0);
+            for (level, t) in f.levels.iter().enumerate() {
+                let (Some(t), Some(img)) = (t, moved.level(level as u32)) else {
+                    continue;
+                };
+                let start = Camera::base_to_level(&(px0 + Vector2::new(2.3, -1.7)), level as u32);
+                let fast = align(img, t, start);
+                let reference = align_per_pixel(img, t, start);
+                assert_eq!(
+                    fast.map(|p| (p.x.to_bits(), p.y.to_bits())),
+                    reference.map(|p| (p.x.to_bits(), p.y.to_bits())),
+                    "{px0} level {level}"
+                );
+                compared += 1;
+            }
+        }
+        assert!(compared > 100, "{compared}");
     }
 
     #[test]

@@ -226,6 +226,23 @@ fn axis(x: f64, n: u32, margin: u32) -> Option<(usize, f32)> {
     Some((x0 as usize, (x - x0) as f32))
 }
 
+/// The axis look-up of [`interpolate`] on its own: top-left index and fraction along an axis of
+/// length `n`, `None` outside `[0, n − 1]`. A window sampled on a whole-pixel grid shares one
+/// per column and one per row; [`bilinear_at`] then gives exactly what `interpolate` gives.
+pub(crate) fn bilinear_axis(x: f64, n: u32) -> Option<(usize, f32)> {
+    axis(x, n, 0)
+}
+
+/// The bilinear blend of [`interpolate`] at the 2 × 2 block whose top-left pixel is `index` in
+/// `pixels` (row length `w`), with the fractions of [`bilinear_axis`].
+#[inline]
+pub(crate) fn bilinear_at(pixels: &[u8], w: usize, index: usize, fu: f32, fv: f32) -> f32 {
+    let px = |i: usize| f32::from(pixels[i]);
+    let top = lerp(px(index), px(index + 1), fu);
+    let bottom = lerp(px(index + w), px(index + w + 1), fu);
+    lerp(top, bottom, fv)
+}
+
 fn lerp(a: f32, b: f32, t: f32) -> f32 {
     a + t * (b - a)
 }

@@ -1,10 +1,13 @@
 //! `ianav-sim bench`: one flight without output, timing the simulator (real-time factor,
-//! memory; docs/PERFORMANCE.md).
+//! memory); `ianav-sim bench-vns`: the visual navigation's time per frame over a camera flight
+//! (docs/PERFORMANCE.md).
 
 use std::time::Instant;
 
-use anyhow::Result;
+use anyhow::{Result, bail};
+use ianav::nav::VisionState;
 use ianav_sim::flight::{Flight, NoObserver};
+use ianav_sim::vns_timing::{TimeSummary, VnsTimer, vision_config};
 
 use super::setup;
 use crate::FlyArgs;
@@ -57,6 +60,109 @@ pub(crate) fn bench(fly: &FlyArgs) -> Result<()> {
     }
     if let Some((rss, peak)) = memory_kb() {
         println!("  at the end:             RSS {rss} kB (peak {peak} kB)");
+    }
+    Ok(())
+}
+
+/// One summary line: `label` frames and their time order statistics.
+fn print_summary(label: &str, ns: impl IntoIterator<Item = u64>) {
+    match TimeSummary::of(ns) {
+        Some(s) => println!(
+            "  {label:<28} {:>6}  {:>7.2} {:>7.2} {:>7.2} {:>7.2} {:>7.2}",
+            s.n, s.mean_ms, s.median_ms, s.p90_ms, s.p99_ms, s.max_ms
+        ),
+        None => println!("  {label:<28} {:>6}", 0),
+    }
+}
+
+pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
+    let mut setup = setup(&fly.setup)?;
+    let Some(camera) = setup.camera.as_mut() else {
+        bail!("bench-vns needs --terrain ZONE");
+    };
+    // The flight's own navigator leaves the frames to the timer's navigator.
+    camera.vision_navigation = false;
+    let terrain = std::sync::Arc::clone(&camera.terrain);
+    let mut flight = Flight::new(&setup, fly.seed)?;
+    let mut timer = VnsTimer::new(&vision_config(&setup, &flight)?)?;
+    let end_s = flight.end_time_s();
+    let mut next_mark = 0.0;
+    // Mission time, memory and the renderer's tile caches (bytes held), which grow with the
+    // ground flown over and are the simulator's, not the navigation's.
+    let mut marks = Vec::new();
+    let started = Instant::now();
+    flight.run(&mut timer, |t_s| {
+        if t_s >= next_mark {
+            let (heights, albedo) = terrain.cache_stats();
+            marks.push((t_s, memory_kb(), heights.bytes + albedo.bytes));
+            next_mark += end_s / 8.0;
+        }
+    })?;
+    let wall_s = started.elapsed().as_secs_f64();
+    let frames = timer.frames();
+    println!(
+        "scenario {} seed {} over {}: {} frames in {wall_s:.1} s of flight simulation (renderer included)",
+        fly.setup.scenario,
+        fly.seed,
+        fly.setup.terrain.as_deref().unwrap_or("?"),
+        frames.len()
+    );
+    println!(
+        "VNS time per frame (Navigator::push of the frame, one thread), ms:\n  {:<28} {:>6}  {:>7} {:>7} {:>7} {:>7} {:>7}",
+        "frames", "n", "mean", "median", "p90", "p99", "max"
+    );
+    print_summary("all", frames.iter().map(|f| f.ns));
+    print_summary(
+        "tracking, not keyframes",
+        frames
+            .iter()
+            .filter(|f| f.state == VisionState::Tracking && !f.keyframe)
+            .map(|f| f.ns),
+    );
+    print_summary(
+        "keyframes",
+        frames.iter().filter(|f| f.keyframe).map(|f| f.ns),
+    );
+    print_summary(
+        "initialising / waiting",
+        frames
+            .iter()
+            .filter(|f| {
+                matches!(
+                    f.state,
+                    VisionState::Initialising | VisionState::WaitingForStart
+                )
+            })
+            .map(|f| f.ns),
+    );
+    print_summary(
+        "relocalising",
+        frames
+            .iter()
+            .filter(|f| f.state == VisionState::Relocalising)
+            .map(|f| f.ns),
+    );
+    if let Some(c) = timer.navigator().vns_counters() {
+        println!(
+            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} bad frames",
+            c.initialisations, c.keyframes, c.tracking_losses, c.relocalisations, c.bad_frames
+        );
+    }
+    println!("memory (RSS; the renderer's tile caches; the VNS map at the latest frame):");
+    for (t_s, mem, tiles_bytes) in marks {
+        let t_us = (t_s + setup.scenario.warmup_s).max(0.0) * 1e6;
+        let map = frames.iter().take_while(|f| f.t_us as f64 <= t_us).last();
+        if let Some((rss, peak)) = mem {
+            println!(
+                "  at mission t = {t_s:7.1} s: RSS {rss:>7} kB (peak {peak:>7} kB), tile caches {:>7} kB, map {:>3} keyframes {:>5} points",
+                tiles_bytes / 1024,
+                map.map_or(0, |f| f.n_keyframes),
+                map.map_or(0, |f| f.n_points),
+            );
+        }
+    }
+    if let Some((rss, peak)) = memory_kb() {
+        println!("  at the end:             RSS {rss:>7} kB (peak {peak:>7} kB)");
     }
     Ok(())
 }

@@ -20,6 +20,7 @@ pub(crate) fn mc(args: &McArgs) -> Result<()> {
         seeds,
         shard: args.shard,
         jobs: args.jobs.map(|j| j as usize),
+        resume: args.resume,
     };
     let to_fly = batch.seeds_to_fly();
     let bar = ProgressBar::new(to_fly.len() as u64);
