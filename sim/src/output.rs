@@ -167,6 +167,39 @@ fn create(path: &Path) -> Result<BufWriter<File>, OutputError> {
         })
 }
 
+/// Open the CSV stream `slot` as `dir/name` with its `header` line unless it is open already;
+/// `false` (the first error kept in `first_error`) if it cannot be opened. Streams that only
+/// some flights produce are opened at their first row.
+fn open_csv_once(
+    slot: &mut Option<BufWriter<File>>,
+    first_error: &mut Option<OutputError>,
+    dir: &Path,
+    name: &str,
+    header: &str,
+) -> bool {
+    if slot.is_some() {
+        return true;
+    }
+    let path = &dir.join(name);
+    let opened = create(path).and_then(|mut w| {
+        writeln!(w, "{header}").map_err(|source| OutputError::Io {
+            path: path.display().to_string(),
+            source,
+        })?;
+        Ok(w)
+    });
+    match opened {
+        Ok(w) => {
+            *slot = Some(w);
+            true
+        }
+        Err(e) => {
+            first_error.get_or_insert(e);
+            false
+        }
+    }
+}
+
 impl RunWriter {
     /// Record the navigator's settings at the head of the sensor log, so that `ianav replay`
     /// runs it as flown. Call before the first event.
@@ -538,23 +571,14 @@ impl RunWriter {
 
     /// One `vision.csv` row (and plot point) for the solution of this output.
     fn vision_row(&mut self, truth: &TruthSample, sol: &NavSolution) {
-        if self.vision.is_none() {
-            let path = self.dir.join(files::VISION);
-            match create(&path).and_then(|mut w| {
-                writeln!(w, "{VISION_HEADER}").map_err(|source| OutputError::Io {
-                    path: path.display().to_string(),
-                    source,
-                })?;
-                Ok(w)
-            }) {
-                Ok(w) => self.vision = Some(w),
-                Err(e) => {
-                    if self.first_error.is_none() {
-                        self.first_error = Some(e);
-                    }
-                    return;
-                }
-            }
+        if !open_csv_once(
+            &mut self.vision,
+            &mut self.first_error,
+            &self.dir,
+            files::VISION,
+            VISION_HEADER,
+        ) {
+            return;
         }
         let v = &sol.vision;
         self.vision_status = Some(*v);
@@ -866,23 +890,14 @@ impl FlightObserver for RunWriter {
     }
 
     fn nav_solution(&mut self, truth: &TruthSample, sol: &NavSolution) {
-        if self.navigation.is_none() {
-            let opened = create(&self.dir.join(files::NAVIGATION)).and_then(|mut w| {
-                writeln!(w, "{NAVIGATION_HEADER}").map_err(|source| OutputError::Io {
-                    path: self.dir.join(files::NAVIGATION).display().to_string(),
-                    source,
-                })?;
-                Ok(w)
-            });
-            match opened {
-                Ok(w) => self.navigation = Some(w),
-                Err(e) => {
-                    if self.first_error.is_none() {
-                        self.first_error = Some(e);
-                    }
-                    return;
-                }
-            }
+        if !open_csv_once(
+            &mut self.navigation,
+            &mut self.first_error,
+            &self.dir,
+            files::NAVIGATION,
+            NAVIGATION_HEADER,
+        ) {
+            return;
         }
         let est = estimate_from_nav(sol);
         let e = metrics::nse(truth, &est);

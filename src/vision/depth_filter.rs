@@ -169,24 +169,12 @@ pub fn inverse_depth_variance(
 #[cfg(test)]
 mod tests {
     use super::*;
-
-    struct Rng(u64);
-    impl Rng {
-        fn uniform(&mut self) -> f64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            (self.0 >> 11) as f64 / (1_u64 << 53) as f64
-        }
-        fn normal(&mut self) -> f64 {
-            (0..12).map(|_| self.uniform()).sum::<f64>() - 6.0
-        }
-    }
+    use crate::vision::test_scene::SplitMix;
 
     /// One seed of a ground point 1,000 m below a camera flying at 30 m/s, seen from frames
     /// 0.1 s apart (3 m more baseline each), one pixel of matching noise, 25 % of the matches
     /// outliers anywhere in the inverse-depth range; `None` if it diverged or never converged.
-    fn converge(rng: &mut Rng) -> Option<(Seed, usize)> {
+    fn converge(rng: &mut SplitMix) -> Option<(Seed, usize)> {
         let (f_px, true_depth_m) = (1117.65, 1_000.0);
         // The keyframe's points: median 1,100 m, minimum 800 m.
         let mut seed = Seed::new(1_100.0, 800.0)?;
@@ -195,7 +183,7 @@ mod tests {
             let t = Vector3::new(3.0 * k as f64, 0.0, 0.0);
             let tau2 = inverse_depth_variance(&f_ref, true_depth_m, &t, 1.0, f_px)?;
             let x = if k % 4 == 0 {
-                rng.uniform() * seed.rho_range
+                rng.unit() * seed.rho_range
             } else {
                 1.0 / true_depth_m + tau2.sqrt() * rng.normal()
             };
@@ -213,7 +201,7 @@ mod tests {
     /// `σ_ρ < ρ_range/200`, here 1.25 % of the depth: single seeds scatter by about that.)
     #[test]
     fn seeds_converge_to_within_one_percent_of_the_true_depth() {
-        let mut rng = Rng(0x5eed_1234_abcd_0001);
+        let mut rng = SplitMix(0x5eed_1234_abcd_0001);
         let mut errors = Vec::new();
         for _ in 0..200 {
             let (seed, k) = converge(&mut rng).expect("converged");

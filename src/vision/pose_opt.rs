@@ -23,6 +23,7 @@ use nalgebra::{Isometry3, Matrix6, Vector2, Vector3, Vector6};
 
 use super::camera::Camera;
 use crate::math::se3;
+use crate::math::stats::median;
 
 /// One map point and where the feature alignment found it in the image.
 #[derive(Debug, Clone, Copy, PartialEq)]
@@ -200,7 +201,8 @@ pub fn optimize_pose(
     // Never below the fixed scale: a start already within a fraction of a pixel would
     // otherwise give the first iterations a cut-off below the alignment noise, and they could
     // not move the pose towards observations a pixel away (see the module doc).
-    let initial_scale_px = (1.48 * median(initial_norms)).max(cfg.fixed_scale_px);
+    let initial_scale_px =
+        median(initial_norms).map_or(cfg.fixed_scale_px, |m| (1.48 * m).max(cfg.fixed_scale_px));
     let mut zeta = *initial;
     let mut prev: Option<(Isometry3<f64>, f64, f64)> = None;
     let mut iterations = 0;
@@ -281,39 +283,16 @@ pub fn optimize_pose(
 }
 
 /// Median of a non-empty list.
-fn median(mut v: Vec<f64>) -> f64 {
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
     use crate::math::so3;
+    use crate::vision::test_scene::SplitMix;
     use nalgebra::Translation3;
-
-    /// xorshift in [−1, 1] and a standard normal from twelve uniforms (enough for noise).
-    struct Rng(u64);
-    impl Rng {
-        fn uniform(&mut self) -> f64 {
-            self.0 ^= self.0 << 13;
-            self.0 ^= self.0 >> 7;
-            self.0 ^= self.0 << 17;
-            (self.0 >> 11) as f64 / (1_u64 << 53) as f64 * 2.0 - 1.0
-        }
-        fn normal(&mut self) -> f64 {
-            (0..12).map(|_| 0.5 * (self.uniform() + 1.0)).sum::<f64>() - 6.0
-        }
-    }
 
     /// A nadir camera 1,000 m over rolling terrain (the "E" frame here is a local level frame
     /// with z down; the optimiser only needs a fixed frame), slightly banked.
-    fn scene(n: usize, rng: &mut Rng) -> (Camera, Isometry3<f64>, Vec<Vector3<f64>>) {
+    fn scene(n: usize, rng: &mut SplitMix) -> (Camera, Isometry3<f64>, Vec<Vector3<f64>>) {
         let camera = Camera::paper();
         let truth = Isometry3::from_parts(
             Translation3::new(120.0, -40.0, -1_000.0),
@@ -322,11 +301,11 @@ mod tests {
         let mut points = Vec::with_capacity(n);
         while points.len() < n {
             let px = Vector2::new(
-                (rng.uniform() * 0.5 + 0.5) * 767.0,
-                (rng.uniform() * 0.5 + 0.5) * 1023.0,
+                (rng.symmetric() * 0.5 + 0.5) * 767.0,
+                (rng.symmetric() * 0.5 + 0.5) * 1023.0,
             );
             // Terrain height varies by ±60 m: depths 940–1,060 m.
-            let depth = 1_000.0 + 60.0 * rng.uniform();
+            let depth = 1_000.0 + 60.0 * rng.symmetric();
             let p_c = camera.back_project_depth(&px, depth);
             points.push(truth.transform_point(&p_c.into()).coords);
         }
@@ -338,7 +317,7 @@ mod tests {
         zeta: &Isometry3<f64>,
         points: &[Vector3<f64>],
         noise_px: f64,
-        rng: &mut Rng,
+        rng: &mut SplitMix,
     ) -> Vec<PoseObservation> {
         points
             .iter()
@@ -358,7 +337,7 @@ mod tests {
     /// respect to the right perturbation of the pose (central differences, 1e-6 m / rad).
     #[test]
     fn the_step_jacobian_matches_finite_differences() {
-        let mut rng = Rng(0x1234_5678_9abc_def1);
+        let mut rng = SplitMix(0x1234_5678_9abc_def1);
         let (camera, truth, points) = scene(5, &mut rng);
         let obs = observe(&camera, &truth, &points, 0.0, &mut rng);
         let zeta = se3::plus(&truth, &Vector6::new(3.0, -2.0, 5.0, 0.01, -0.005, 0.02));
@@ -384,7 +363,7 @@ mod tests {
     /// by the noise) on every axis and jointly, the outliers are found, the inliers kept.
     #[test]
     fn a_known_pose_is_recovered_with_twenty_percent_outliers() {
-        let mut rng = Rng(0x0dd_ba11_cafe_f00d);
+        let mut rng = SplitMix(0x0dd_ba11_cafe_f00d);
         let (camera, truth, points) = scene(250, &mut rng);
         let noise_px = 0.3;
         let mut obs = observe(&camera, &truth, &points, noise_px, &mut rng);
@@ -392,8 +371,8 @@ mod tests {
         for (i, o) in obs.iter_mut().enumerate() {
             if i % 5 == 0 {
                 o.px = Vector2::new(
-                    (rng.uniform() * 0.5 + 0.5) * 767.0,
-                    (rng.uniform() * 0.5 + 0.5) * 1023.0,
+                    (rng.symmetric() * 0.5 + 0.5) * 767.0,
+                    (rng.symmetric() * 0.5 + 0.5) * 1023.0,
                 );
                 is_outlier[i] = true;
             }
@@ -444,7 +423,7 @@ mod tests {
                 *g += d * self.1;
             }
         }
-        let mut rng = Rng(42);
+        let mut rng = SplitMix(42);
         let (camera, truth, points) = scene(100, &mut rng);
         let obs = observe(&camera, &truth, &points, 0.0, &mut rng);
         let start = se3::plus(&truth, &Vector6::new(2.0, 0.0, 0.0, 0.0, 0.0, 0.002));
@@ -460,7 +439,7 @@ mod tests {
 
     #[test]
     fn too_few_or_bad_observations_are_an_error_not_a_panic() {
-        let mut rng = Rng(7);
+        let mut rng = SplitMix(7);
         let (camera, truth, points) = scene(30, &mut rng);
         let mut obs = observe(&camera, &truth, &points, 0.0, &mut rng);
         for o in obs.iter_mut().skip(5) {

@@ -39,6 +39,7 @@ use super::pose_opt::{PoseObservation, PoseOptConfig, optimize_pose};
 use super::pyramid::{Pyramid, PyramidError};
 use super::sparse_align::{AlignFeature, SparseAlignConfig, sparse_align};
 use super::structure_opt::{PointObservation, optimize_point};
+use crate::math::stats::median;
 use crate::math::{se3, wgs84};
 use crate::sensors::Frame;
 
@@ -450,7 +451,7 @@ impl Vns {
             }
             return None;
         }
-        let disparity = median(pairs.iter().map(|(a, b)| (b - a).norm()).collect());
+        let disparity = median(pairs.iter().map(|(a, b)| (b - a).norm()).collect()).unwrap_or(0.0);
         if disparity < self.cfg.init_min_disparity_px {
             self.init = Some(init);
             return None;
@@ -950,7 +951,7 @@ impl Vns {
             })
             .collect();
         let min = depths.iter().copied().fold(f64::INFINITY, f64::min);
-        (!depths.is_empty()).then(|| (median(depths), min))
+        median(depths).map(|m| (m, min))
     }
 
     /// SVO 1's keyframe rule: a new keyframe unless an overlapping keyframe is within
@@ -1170,19 +1171,6 @@ impl Vns {
 }
 
 /// Median of a non-empty list (0 for an empty one).
-fn median(mut v: Vec<f64>) -> f64 {
-    if v.is_empty() {
-        return 0.0;
-    }
-    v.sort_by(f64::total_cmp);
-    let n = v.len();
-    if n % 2 == 1 {
-        v[n / 2]
-    } else {
-        0.5 * (v[n / 2 - 1] + v[n / 2])
-    }
-}
-
 #[cfg(test)]
 mod tests {
     use super::*;
