@@ -642,9 +642,10 @@ fn vision_section(
         "## Visual navigation (VNS) beside the INS\n\n\
          The paper's VNS (semi-direct visual odometry fed with the images and the initial \
          estimate at its first image only) and the INS, on the same {} flights. \
-         Tracking losses: {losses} in {runs_with_losses} runs ({relocalisations} \
+         Tracking losses: {losses}, in {runs_with_losses} of the {} runs ({relocalisations} \
          relocalisations); {never} runs never initialised; {} runs track at t_end and are \
          compared below.\n",
+        with_vision.len(),
         with_vision.len(),
         tracked.len()
     );
