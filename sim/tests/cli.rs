@@ -105,6 +105,32 @@ fn bad_arguments_are_refused() {
     assert_clean_failure(&out, "--turbulence");
 }
 
+/// `bench-vns` times every frame of a camera flight (10 Hz from mission time 0: 31 frames in
+/// 3 s) and refuses a flight without a camera.
+#[test]
+fn bench_vns_times_every_frame_and_needs_a_camera() {
+    let out = ianav_sim(&["bench-vns", "--scenario", "2", "--duration", "3"]);
+    assert_clean_failure(&out, "--terrain");
+    let out = ianav_sim(&[
+        "bench-vns",
+        "--scenario",
+        "2",
+        "--duration",
+        "3",
+        "--terrain",
+        "mx",
+    ]);
+    let stdout = String::from_utf8_lossy(&out.stdout);
+    assert!(out.status.success(), "{stdout}");
+    assert!(stdout.contains("over mx: 31 frames"), "{stdout}");
+    let all = stdout
+        .lines()
+        .find(|l| l.trim_start().starts_with("all "))
+        .unwrap();
+    assert_eq!(all.split_whitespace().nth(1), Some("31"), "{all}");
+    assert!(stdout.contains("0 bad frames"), "{stdout}");
+}
+
 #[test]
 fn bad_configuration_files_name_the_field() {
     let dir = temp_dir("config");
