@@ -35,10 +35,7 @@ fn sequence(zone: Zone) -> Option<(Navigator, Vec<SensorEvent>)> {
     let mut flight = Flight::new(&setup, 1).ok()?;
     let cfg = vision_config(&setup, &flight).ok()?;
     let warmup_us = setup.scenario.warmup_s * 1e6;
-    let mut recorder = EventRecorder {
-        until_us: u64::MAX,
-        events: Vec::new(),
-    };
+    let mut recorder = EventRecorder::default();
     flight.run(&mut recorder, |_| {}).ok()?;
     let mut nav = Navigator::new(&cfg).ok()?;
     let snapshot_us = warmup_us + SNAPSHOT_S * 1e6;

@@ -154,20 +154,16 @@ impl TimeSummary {
     }
 }
 
-/// Collects a flight's sensor events up to a mission time (the criterion bench replays them).
+/// Collects a flight's sensor events (the criterion bench replays them).
 #[derive(Debug, Default)]
 pub struct EventRecorder {
-    /// Events after this sensor time are dropped, µs.
-    pub until_us: u64,
     /// The events, in the order the flight produced them.
     pub events: Vec<SensorEvent>,
 }
 
 impl FlightObserver for EventRecorder {
     fn sensor_event(&mut self, event: &SensorEvent) {
-        if event.t_us() <= self.until_us {
-            self.events.push(event.clone());
-        }
+        self.events.push(event.clone());
     }
 }
 

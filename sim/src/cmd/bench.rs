@@ -151,7 +151,8 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
     println!("memory (RSS; the renderer's tile caches; the VNS map at the latest frame):");
     for (t_s, mem, tiles_bytes) in marks {
         let t_us = (t_s + setup.scenario.warmup_s).max(0.0) * 1e6;
-        let map = frames.iter().take_while(|f| f.t_us as f64 <= t_us).last();
+        let n_before = frames.partition_point(|f| f.t_us as f64 <= t_us);
+        let map = n_before.checked_sub(1).map(|i| &frames[i]);
         if let Some((rss, peak)) = mem {
             println!(
                 "  at mission t = {t_s:7.1} s: RSS {rss:>7} kB (peak {peak:>7} kB), tile caches {:>7} kB, map {:>3} keyframes {:>5} points",
