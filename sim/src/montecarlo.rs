@@ -223,6 +223,9 @@ pub struct VisionRun {
     pub tracking_losses: u64,
     /// Successful relocalisations.
     pub relocalisations: u64,
+    /// Frames tracked from the motion model after sparse alignment's pose failed (written
+    /// only when not zero, so run files of flights that never needed it are unchanged).
+    pub motion_model_recoveries: u64,
 }
 
 /// One run of a batch: the content of a run file.
@@ -295,6 +298,13 @@ impl RunRecord {
                     let _ = writeln!(t, "# vision_initialisations = {}", v.initialisations);
                     let _ = writeln!(t, "# vision_tracking_losses = {}", v.tracking_losses);
                     let _ = writeln!(t, "# vision_relocalisations = {}", v.relocalisations);
+                    if v.motion_model_recoveries > 0 {
+                        let _ = writeln!(
+                            t,
+                            "# vision_motion_model_recoveries = {}",
+                            v.motion_model_recoveries
+                        );
+                    }
                 }
                 let _ = writeln!(t, "{RUN_COLUMNS}");
                 write_samples(&mut t, samples);
@@ -407,6 +417,11 @@ impl RunRecord {
                         initialisations: count("vision_initialisations")?,
                         tracking_losses: count("vision_tracking_losses")?,
                         relocalisations: count("vision_relocalisations")?,
+                        motion_model_recoveries: if get("vision_motion_model_recoveries").is_ok() {
+                            count("vision_motion_model_recoveries")?
+                        } else {
+                            0
+                        },
                     }),
                     None => None,
                 };
@@ -473,6 +488,7 @@ pub fn fly(scenario: u8, setup: &FlightSetup, seed: u64) -> RunRecord {
                 initialisations: c.initialisations,
                 tracking_losses: c.tracking_losses,
                 relocalisations: c.relocalisations,
+                motion_model_recoveries: c.motion_model_recoveries,
             });
         Ok::<_, crate::flight::FlightError>((summary.distance_m, recorder.finish(), vision))
     }));
@@ -832,6 +848,7 @@ mod tests {
                     initialisations: 1,
                     tracking_losses: 3,
                     relocalisations: 2,
+                    motion_model_recoveries: 4,
                 }),
             },
             ..record
@@ -857,5 +874,18 @@ mod tests {
         // A VNS section without its counters is an error, not a silent zero.
         let no_counters = text.replace("# vision_tracking_losses = 3\n", "");
         assert!(RunRecord::parse(&no_counters).is_err());
+        // Motion-model recoveries are written only when there were some: absent reads as 0.
+        assert_eq!(v.motion_model_recoveries, 4);
+        let none = text.replace("# vision_motion_model_recoveries = 4\n", "");
+        let Ok(RunRecord {
+            outcome: RunOutcome::Completed {
+                vision: Some(v), ..
+            },
+            ..
+        }) = RunRecord::parse(&none)
+        else {
+            panic!("a run file without recoveries should parse")
+        };
+        assert_eq!(v.motion_model_recoveries, 0);
     }
 }

@@ -633,6 +633,19 @@ fn vision_section(
         .filter(|(_, _, v)| v.tracking_losses > 0)
         .count();
     let relocalisations: u64 = with_vision.iter().map(|(_, _, v)| v.relocalisations).sum();
+    let recoveries: u64 = with_vision
+        .iter()
+        .map(|(_, _, v)| v.motion_model_recoveries)
+        .sum();
+    // Said only when there were some, so reports of batches that never needed it are unchanged.
+    let recovered = if recoveries > 0 {
+        format!(
+            " {recoveries} frames were tracked from the motion model after sparse alignment's \
+             pose failed (not losses)."
+        )
+    } else {
+        String::new()
+    };
     let never = with_vision
         .iter()
         .filter(|(_, _, v)| v.initialisations == 0)
@@ -644,7 +657,7 @@ fn vision_section(
          estimate at its first image only) and the INS, on the same {} flights. \
          Tracking losses: {losses}, in {runs_with_losses} of the {} runs ({relocalisations} \
          relocalisations); {never} runs never initialised; {} runs track at t_end and are \
-         compared below.\n",
+         compared below.{recovered}\n",
         with_vision.len(),
         with_vision.len(),
         tracked.len()

@@ -199,6 +199,9 @@ pub struct VnsCounters {
     pub tracking_losses: u64,
     /// Successful relocalisations.
     pub relocalisations: u64,
+    /// Frames tracked from the motion model's guess after tracking from sparse alignment's
+    /// pose failed (not losses).
+    pub motion_model_recoveries: u64,
     /// Keyframes created.
     pub keyframes: u64,
     /// Seeds converged into candidates.
@@ -596,6 +599,23 @@ impl Vns {
         let result = match aligned {
             Some((zeta, n)) if n >= min_aligned => self.track_from(t_us, &pyramid, zeta, &last),
             _ => Err(0),
+        };
+        // The motion model as a second chance (ORB-SLAM's tracking chain). Over periodic
+        // texture (a city's rows of houses) seen through a narrow field of view, sparse
+        // alignment, which ends at level 2, can settle tens to hundreds of metres and up to
+        // degrees away, where a tilt and a lateral shift together move the pattern by about
+        // one period; matching around that pose fails. The guess is tried before the frame is
+        // called lost. A frame that tracks from the aligned pose never comes here, so a
+        // flight without losses is unchanged by it.
+        let result = match result {
+            Err(_) if aligned.is_none_or(|(zeta, _)| zeta != guess) => {
+                let retried = self.track_from(t_us, &pyramid, guess, &last);
+                if retried.is_ok() {
+                    self.counters.motion_model_recoveries += 1;
+                }
+                retried
+            }
+            result => result,
         };
         match result {
             Ok((zeta_ec, matches, n_matched, rms, keyframe)) => {
@@ -1342,5 +1362,56 @@ mod tests {
         }
         assert_eq!(vns.counters().bad_frames, 3);
         assert_eq!(vns.state(), VnsState::Tracking);
+    }
+
+    /// Sparse alignment that settles at a wrong pose (here: the reference image swapped for one
+    /// taken 40 m away, so the alignment moves by about 2.3° of view, tens of px) fails the
+    /// frame's matching; the motion model's guess tracks it instead. Not a loss: the frame
+    /// keeps tracking and the recovery is counted.
+    #[test]
+    fn a_frame_whose_alignment_settles_wrong_is_tracked_from_the_motion_model() {
+        let (cam, mut vns) = small_vns();
+        let ground = Ground {
+            seed: 5,
+            ground_z_m: 0.0,
+        };
+        let zeta_ew = zeta_ew();
+        let mut states = Vec::new();
+        for k in 0..33_u64 {
+            let t_us = 1_000_000 + k * 100_000;
+            let pose_w = pose_at(k);
+            if k == 30 {
+                let last = vns.last.as_mut().expect("tracking before frame 30");
+                let moved = nadir_pose(30.0 * 2.9 + 40.0, 1.5 * 2.9, 1_000.0, [0.0, 0.0, 0.0058]);
+                let elsewhere = ground.frame(&cam, &moved, last.t_us);
+                last.pyramid = Arc::new(Pyramid::from_frame(&elsewhere, &cam).unwrap());
+            }
+            let frame = ground.frame(&cam, &pose_w, t_us);
+            let start = VnsStart {
+                zeta_ec: zeta_ew * pose_w,
+                h_agl_m: 1_000.0,
+            };
+            if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
+                if k == 30 {
+                    let truth = zeta_ew * pose_w;
+                    let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
+                    assert!(err_m < 5.0, "frame 30 tracked {err_m} m off");
+                }
+                states.push((k, out.state));
+            }
+        }
+        assert!(
+            states
+                .iter()
+                .filter(|(k, _)| *k >= 29)
+                .all(|(_, s)| *s == VnsState::Tracking),
+            "{states:?}"
+        );
+        let c = *vns.counters();
+        assert_eq!(
+            (c.tracking_losses, c.motion_model_recoveries),
+            (0, 1),
+            "{c:?}"
+        );
     }
 }

@@ -144,8 +144,13 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
     );
     if let Some(c) = timer.navigator().vns_counters() {
         println!(
-            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} bad frames",
-            c.initialisations, c.keyframes, c.tracking_losses, c.relocalisations, c.bad_frames
+            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} motion-model recoveries, {} bad frames",
+            c.initialisations,
+            c.keyframes,
+            c.tracking_losses,
+            c.relocalisations,
+            c.motion_model_recoveries,
+            c.bad_frames
         );
     }
     println!("memory (RSS; the renderer's tile caches; the VNS map at the latest frame):");
