@@ -11,7 +11,9 @@
 //! 3. pose optimisation ([`crate::vision::pose_opt`]), outliers dropped;
 //! 4. structure optimisation of the least recently refined points
 //!    ([`crate::vision::structure_opt`]);
-//! 5. tracking-quality check; a failure starts relocalisation against the closest keyframe;
+//! 5. tracking-quality check; on a failure, steps 2–5 again from the constant-velocity guess
+//!    (sparse alignment can settle a texture period away), and only then a tracking loss,
+//!    which starts relocalisation against the closest keyframe;
 //! 6. keyframe selection (no overlapping keyframe within 0.12 × the median depth), new seeds on
 //!    free cells, the furthest keyframe dropped beyond the map's size;
 //! 7. depth-filter update of every live seed by epipolar search; converged seeds become
