@@ -200,14 +200,23 @@ pub fn cellular(seed: u64, x: f64, y: f64, cell_m: f64, jitter: f64) -> Cell {
         dx_m: 0.0,
         dy_m: 0.0,
     };
+    // Square of `best.d2_m`: a point whose squared distance is not below it cannot be among
+    // the two nearest (the square root is monotone), so its square root is skipped. The
+    // comparisons that decide stay those of the distances: the same result, ties included.
+    let (mut d1_sq, mut d2_sq) = (f64::INFINITY, f64::INFINITY);
     for j in -1..=1 {
         for i in -1..=1 {
             let h = hash2(seed, cx + i, cy + j);
             let px = (cx + i) as f64 + 0.5 + jitter * (unit16(h, 0) - 0.5);
             let py = (cy + j) as f64 + 0.5 + jitter * (unit16(h, 1) - 0.5);
             let (dx, dy) = ((gx - px) * cell_m, (gy - py) * cell_m);
-            let d = (dx * dx + dy * dy).sqrt();
+            let sq = dx * dx + dy * dy;
+            if sq >= d2_sq {
+                continue;
+            }
+            let d = sq.sqrt();
             if d < best.d1_m {
+                (d1_sq, d2_sq) = (sq, d1_sq);
                 best.d2_m = best.d1_m;
                 best = Cell {
                     d1_m: d,
@@ -218,6 +227,7 @@ pub fn cellular(seed: u64, x: f64, y: f64, cell_m: f64, jitter: f64) -> Cell {
                 };
             } else if d < best.d2_m {
                 best.d2_m = d;
+                d2_sq = sq;
             }
         }
     }
