@@ -1370,32 +1370,94 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     ) {
         let wu = self.wu;
         let rays = (self.rays_of_row)(v as f64);
-        let base = r * wu;
-        let above = |blk: &GroundBlock, col: usize, k: usize| -> f64 {
-            if r >= k * gap {
-                blk.t[(r - k * gap) * wu + col]
-            } else {
-                f64::NAN
-            }
-        };
         let mut pred = Pred::default();
         let mut col = 0;
         while col < wu {
-            let guess = predict(above(blk, col, 1), above(blk, col, 2), &pred);
-            let sol = solve_ray(&rays.at(col as f64), self.scene, guess, &mut pred, st);
-            blk.set(base + col, sol);
-            col = if col + step < wu || col + 1 >= wu {
-                col + step
-            } else {
-                wu - 1
-            };
+            self.solve_at(blk, r, gap, &rays, col, &mut pred, st);
+            col = next_col(col, step, wu);
         }
         if step == 2 {
-            for col in (1..wu.saturating_sub(1)).step_by(2) {
-                if !blk.set_mid(base + col, base + col - 1, base + col + 1) {
-                    let guess = predict(above(blk, col, 1), above(blk, col, 2), &Pred::default());
-                    blk.set(base + col, self.solve_alone(&rays, col, guess, st));
-                }
+            self.fill_odd(blk, r, gap, &rays, st);
+        }
+    }
+
+    /// [`Self::solve_row`] with step 2 and gap 2 for the rows `rs` (block rows 2 apart, each
+    /// predicted from the one before), their columns taken in turn. Row 0 of a block is
+    /// predicted from the left only, one long chain of dependent solves; the solves of the
+    /// rows below it hang off that chain without lengthening it, so the CPU overlaps them.
+    /// Each solve sees the same guess as in row order: the same values.
+    fn solve_rows(&self, blk: &mut GroundBlock, rs: &[usize], v0: usize, st: &mut RenderStats) {
+        let wu = self.wu;
+        let n = rs.len().min(JOINT_ROWS);
+        if n == 0 {
+            return;
+        }
+        let rays: [RowRays; JOINT_ROWS] =
+            std::array::from_fn(|i| (self.rays_of_row)((v0 + rs[i.min(n - 1)]) as f64));
+        let mut preds = [Pred::default(); JOINT_ROWS];
+        let mut col = 0;
+        while col < wu {
+            for i in 0..n {
+                self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
+            }
+            col = next_col(col, 2, wu);
+        }
+        for i in 0..n {
+            self.fill_odd(blk, rs[i], 2, &rays[i], st);
+        }
+    }
+
+    /// Depth of row `r` at `gap · k` rows above, NaN when outside the block.
+    #[inline(always)]
+    fn above(&self, blk: &GroundBlock, r: usize, gap: usize, col: usize, k: usize) -> f64 {
+        if r >= k * gap {
+            blk.t[(r - k * gap) * self.wu + col]
+        } else {
+            f64::NAN
+        }
+    }
+
+    /// Exact intersection of row `r` at `col`, predicted from above or from the left.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    fn solve_at(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        gap: usize,
+        rays: &RowRays,
+        col: usize,
+        pred: &mut Pred,
+        st: &mut RenderStats,
+    ) {
+        let guess = predict(
+            self.above(blk, r, gap, col, 1),
+            self.above(blk, r, gap, col, 2),
+            pred,
+        );
+        let sol = solve_ray(&rays.at(col as f64), self.scene, guess, pred, st);
+        blk.set(r * self.wu + col, sol);
+    }
+
+    /// Odd columns of row `r` (its even ones solved): midpoints, or exact next to sky.
+    fn fill_odd(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        gap: usize,
+        rays: &RowRays,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let base = r * wu;
+        for col in (1..wu.saturating_sub(1)).step_by(2) {
+            if !blk.set_mid(base + col, base + col - 1, base + col + 1) {
+                let guess = predict(
+                    self.above(blk, r, gap, col, 1),
+                    self.above(blk, r, gap, col, 2),
+                    &Pred::default(),
+                );
+                blk.set(base + col, self.solve_alone(rays, col, guess, st));
             }
         }
     }
@@ -1417,7 +1479,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         )
     }
 
-    /// Rows `0, 2, 4, …` of the block (image rows from `v0`) solved by [`Self::solve_row`],
+    /// Rows `0, 2, 4, …` of the block (image rows from `v0`) solved by [`Self::solve_rows`],
     /// odd rows as midpoints of the rows above and below (the block's extra last row is the
     /// first row of the next block, solved here too; the image's last row, when odd, is
     /// solved directly).
@@ -1431,11 +1493,10 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     ) {
         let wu = self.wu;
         let below_last = v0 + n_rows < image_rows;
-        for r in (0..n_rows).step_by(2) {
-            self.solve_row(blk, r, v0 + r, 2, 2, st);
-        }
-        if n_rows.is_multiple_of(2) && below_last {
-            self.solve_row(blk, n_rows, v0 + n_rows, 2, 2, st);
+        let extra = (n_rows.is_multiple_of(2) && below_last).then_some(n_rows);
+        let rs: Vec<usize> = (0..n_rows).step_by(2).chain(extra).collect();
+        for g in rs.chunks(JOINT_ROWS) {
+            self.solve_rows(blk, g, v0, st);
         }
         for r in (1..n_rows).step_by(2) {
             if r + 1 >= n_rows && !below_last {
@@ -1454,6 +1515,21 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         }
     }
 }
+
+/// Next solved column after `col`: every `step`-th, and the last one.
+#[inline(always)]
+fn next_col(col: usize, step: usize, wu: usize) -> usize {
+    if col + step < wu || col + 1 >= wu {
+        col + step
+    } else {
+        wu - 1
+    }
+}
+
+/// Solved rows taken together by [`BlockGeometry::solve_rows`]: all of a 16-row block's (its
+/// even rows and the next block's first). Measured over a flight: 8–10 % less CPU per frame
+/// with all of them, 6 % with pairs.
+const JOINT_ROWS: usize = 9;
 
 /// Depth prediction from the two pixels above (`a1` nearer; NaN when absent), else from the
 /// pixels to the left.
