@@ -223,7 +223,7 @@ pub struct VisionRun {
     pub tracking_losses: u64,
     /// Successful relocalisations.
     pub relocalisations: u64,
-    /// Frames tracked from the motion model after sparse alignment's pose failed (written
+    /// Frames tracked from a second start after sparse alignment's pose failed (written
     /// only when not zero, so run files of flights that never needed it are unchanged).
     pub motion_model_recoveries: u64,
 }

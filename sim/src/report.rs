@@ -640,8 +640,9 @@ fn vision_section(
     // Said only when there were some, so reports of batches that never needed it are unchanged.
     let recovered = if recoveries > 0 {
         format!(
-            " {recoveries} frames were tracked from the motion model after sparse alignment's \
-             pose failed (not losses)."
+            " {recoveries} frames were tracked from a second start (the motion model's guess, \
+             aligned again on the fine levels, bare or turned) after sparse alignment's pose \
+             failed (not losses)."
         )
     } else {
         String::new()

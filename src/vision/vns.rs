@@ -25,7 +25,7 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Unit, Vector2, Vector3};
+use nalgebra::{Isometry3, Unit, Vector2, Vector3, Vector6};
 
 use super::camera::Camera;
 use super::depth_filter::{Seed, SeedUpdate, inverse_depth_variance};
@@ -201,8 +201,9 @@ pub struct VnsCounters {
     pub tracking_losses: u64,
     /// Successful relocalisations.
     pub relocalisations: u64,
-    /// Frames tracked from the motion model's guess after tracking from sparse alignment's
-    /// pose failed (not losses).
+    /// Frames tracked from a second start after tracking from sparse alignment's pose failed
+    /// (not losses): the motion model's guess, aligned again on the fine levels, bare, or
+    /// turned by ±δ, ±2δ (`Vns::second_chance`).
     pub motion_model_recoveries: u64,
     /// Keyframes created.
     pub keyframes: u64,
@@ -254,6 +255,27 @@ struct FrameMatch {
     px: Vector2<f64>,
     level: u32,
 }
+
+/// A frame tracked from one start pose, not yet committed to the map.
+#[derive(Debug, Clone)]
+struct Attempt {
+    zeta_ec: Isometry3<f64>,
+    inliers: Vec<FrameMatch>,
+    n_matched: usize,
+    rms_px: f64,
+    verdicts: Vec<PointVerdict>,
+}
+
+/// What matching said about one map point in the current frame, kept until the frame tracks.
+#[derive(Debug, Clone, Copy)]
+enum PointVerdict {
+    Matched { point: PointId },
+    Failed { point: PointId, units: u32 },
+}
+
+/// The turn δ between the second-chance starts, degrees (about one street-grid period at
+/// sparse alignment's coarsest level).
+const SECOND_CHANCE_TURN_DEG: f64 = 0.75;
 
 /// Seeds are updated only from frames that see them with at least this parallax, px.
 const MIN_SEED_PARALLAX_PX: f64 = 2.0;
@@ -592,35 +614,35 @@ impl Vns {
         };
         let aligned = reference
             .as_ref()
-            .and_then(|r| self.align(r, &pyramid, &guess));
+            .and_then(|r| self.align(r, &pyramid, &guess, &self.cfg.sparse_align));
         let min_aligned = if relocalising {
             self.cfg.relocalise_min_tracked
         } else {
             1
         };
-        let result = match aligned {
-            Some((zeta, n)) if n >= min_aligned => self.track_from(t_us, &pyramid, zeta, &last),
+        let first = match aligned {
+            Some((zeta, n)) if n >= min_aligned => self.attempt(&pyramid, zeta, &last),
             _ => Err(0),
         };
-        // The motion model as a second chance (ORB-SLAM's tracking chain). Over periodic
-        // texture (a city's rows of houses) seen through a narrow field of view, sparse
-        // alignment, which ends at level 2, can settle tens to hundreds of metres and up to
-        // degrees away, where a tilt and a lateral shift together move the pattern by about
-        // one period; matching around that pose fails. The guess is tried before the frame is
-        // called lost. A frame that tracks from the aligned pose never comes here, so a
-        // flight without losses is unchanged by it.
-        let result = match result {
-            Err(_) if aligned.is_none_or(|(zeta, _)| zeta != guess) => {
-                let retried = self.track_from(t_us, &pyramid, guess, &last);
-                if retried.is_ok() {
-                    self.counters.motion_model_recoveries += 1;
-                }
-                retried
+        let result = first.or_else(|n| {
+            let second = self.second_chance(
+                reference.as_ref(),
+                &pyramid,
+                &guess,
+                aligned.map(|(zeta, _)| zeta),
+                &last,
+                min_aligned,
+                relocalising,
+            );
+            if second.is_some() {
+                self.counters.motion_model_recoveries += 1;
             }
-            result => result,
-        };
+            second.ok_or(n)
+        });
         match result {
-            Ok((zeta_ec, matches, n_matched, rms, keyframe)) => {
+            Ok(mut attempt) => {
+                let keyframe = self.commit(t_us, &pyramid, &mut attempt);
+                let zeta_ec = attempt.zeta_ec;
                 if relocalising {
                     self.counters.relocalisations += 1;
                 }
@@ -628,15 +650,26 @@ impl Vns {
                 self.last_motion =
                     (!relocalising).then(|| se3::renormalized(&(last.zeta_ec.inverse() * zeta_ec)));
                 self.last_good = Some((t_us, zeta_ec));
-                let n_inliers = matches.len();
+                let n_inliers = attempt.inliers.len();
                 self.last = Some(LastFrame {
                     t_us,
                     zeta_ec,
                     pyramid,
-                    features: matches.iter().map(|m| (m.px, m.level, m.point)).collect(),
+                    features: attempt
+                        .inliers
+                        .iter()
+                        .map(|m| (m.px, m.level, m.point))
+                        .collect(),
                     keyframe: keyframe || relocalising,
                 });
-                self.output(t_us, zeta_ec, n_matched, n_inliers, rms, keyframe)
+                self.output(
+                    t_us,
+                    zeta_ec,
+                    attempt.n_matched,
+                    n_inliers,
+                    attempt.rms_px,
+                    keyframe,
+                )
             }
             Err(n_matched) => {
                 if !relocalising {
@@ -651,6 +684,91 @@ impl Vns {
         }
     }
 
+    /// The second chances of a frame that did not track from its sparse alignment (ORB-SLAM's
+    /// tracking chain, widened). Over periodic texture (a city's street grid and rows of
+    /// houses) sparse alignment's coarse levels can lock a pattern period away: tens to
+    /// hundreds of metres and up to degrees from the guess, where a tilt and a lateral shift
+    /// together move the pattern by about one period. In order:
+    /// 1. alignment from the guess on the two finest levels only, where the guess is within
+    ///    reach and the coarse period is not seen; then the bare guess;
+    /// 2. while tracking (not relocalising), full alignments from the guess turned by ±δ and
+    ///    ±2δ about the camera's x and y axes: an aileron or a gust changes the roll rate by
+    ///    more than a degree within one frame, so the constant-velocity guess is off by about
+    ///    one coarse period. Of the starts that pass the quality test, the most inliers win.
+    ///
+    /// A frame that tracks from its first alignment never comes here, so a flight without
+    /// losses is unchanged by it.
+    #[allow(clippy::too_many_arguments)]
+    fn second_chance(
+        &self,
+        reference: Option<&LastFrame>,
+        pyramid: &Pyramid,
+        guess: &Isometry3<f64>,
+        aligned: Option<Isometry3<f64>>,
+        last: &LastFrame,
+        min_aligned: usize,
+        relocalising: bool,
+    ) -> Option<Attempt> {
+        let mut tried: Vec<Isometry3<f64>> = aligned.into_iter().collect();
+        let mut try_start = |start: Isometry3<f64>| {
+            if tried.contains(&start) {
+                return None;
+            }
+            tried.push(start);
+            self.attempt(pyramid, start, last).ok()
+        };
+        let fine_cfg = SparseAlignConfig {
+            max_level: self.cfg.sparse_align.min_level + 1,
+            ..self.cfg.sparse_align
+        };
+        let fine = reference
+            .and_then(|r| self.align(r, pyramid, guess, &fine_cfg))
+            .filter(|&(_, n)| n >= min_aligned)
+            .map(|(zeta, _)| zeta);
+        if let Some(a) = fine.and_then(&mut try_start) {
+            return Some(a);
+        }
+        if let Some(a) = try_start(*guess) {
+            return Some(a);
+        }
+        if relocalising {
+            return None;
+        }
+        let reference = reference?;
+        let delta = SECOND_CHANCE_TURN_DEG.to_radians();
+        let mut best: Option<Attempt> = None;
+        for (k, axis) in [
+            (1.0, 0),
+            (-1.0, 0),
+            (1.0, 1),
+            (-1.0, 1),
+            (2.0, 0),
+            (-2.0, 0),
+            (2.0, 1),
+            (-2.0, 1),
+        ] {
+            // τ = [v; ω]: a turn about the camera's x (index 3) or y (index 4) axis.
+            let mut tau = Vector6::zeros();
+            tau[3 + axis] = k * delta;
+            let turned = se3::plus(guess, &tau);
+            let Some((start, n)) = self.align(reference, pyramid, &turned, &self.cfg.sparse_align)
+            else {
+                continue;
+            };
+            if n < min_aligned {
+                continue;
+            }
+            if let Some(a) = try_start(start)
+                && best
+                    .as_ref()
+                    .is_none_or(|b| a.inliers.len() > b.inliers.len())
+            {
+                best = Some(a);
+            }
+        }
+        best
+    }
+
     /// Sparse alignment of `pyramid` against `reference`, starting from `guess`; the pose and
     /// the features used.
     fn align(
@@ -658,6 +776,7 @@ impl Vns {
         reference: &LastFrame,
         pyramid: &Pyramid,
         guess: &Isometry3<f64>,
+        cfg: &SparseAlignConfig,
     ) -> Option<(Isometry3<f64>, usize)> {
         let centre = reference.zeta_ec.translation.vector;
         let features: Vec<AlignFeature> = reference
@@ -679,7 +798,7 @@ impl Vns {
             pyramid,
             &features,
             &t_cur_ref_guess,
-            &self.cfg.sparse_align,
+            cfg,
         )
         .ok()?;
         Some((
@@ -713,17 +832,15 @@ impl Vns {
         })
     }
 
-    /// Steps 2–7 from the aligned pose. `Ok((pose, inlier matches, matched, rms, keyframe))`,
-    /// or `Err(matched)` on a tracking failure.
-    #[allow(clippy::type_complexity)]
-    fn track_from(
-        &mut self,
-        t_us: u64,
-        pyramid: &Arc<Pyramid>,
-        zeta_aligned: Isometry3<f64>,
+    /// Steps 2–5 from a start pose (matching, pose optimisation, the quality test), without
+    /// touching the map: `Err(matched)` on a tracking failure.
+    fn attempt(
+        &self,
+        pyramid: &Pyramid,
+        start: Isometry3<f64>,
         last: &LastFrame,
-    ) -> Result<(Isometry3<f64>, Vec<FrameMatch>, usize, f64, bool), usize> {
-        let matches = self.reproject_and_match(pyramid, &zeta_aligned);
+    ) -> Result<Attempt, usize> {
+        let (matches, verdicts) = self.reproject_and_match(pyramid, &start);
         let n_matched = matches.len();
         if n_matched < self.cfg.min_matches {
             return Err(n_matched);
@@ -742,7 +859,7 @@ impl Vns {
         // equally (the tilt flip): sparse alignment, which stops at level 2, cannot tell them
         // apart and may start the optimisation in the wrong basin. The constant-velocity
         // prediction from the previous frames is a second start; the lower cost wins.
-        let starts = std::iter::once(zeta_aligned).chain(
+        let starts = std::iter::once(start).chain(
             self.last_motion
                 .map(|m| se3::renormalized(&(last.zeta_ec * m))),
         );
@@ -760,7 +877,6 @@ impl Vns {
             .filter(|(_, ok)| **ok)
             .map(|(m, _)| *m)
             .collect();
-        let zeta_ec = opt.zeta_ec;
         // Quality (SVO: at least `min_matches`, no drop of more than `max_match_drop`).
         let previous = if last.keyframe {
             0
@@ -772,22 +888,37 @@ impl Vns {
         {
             return Err(n_matched);
         }
-        self.optimize_structure(&inliers);
-        let keyframe = self.needs_keyframe(&zeta_ec, &inliers);
-        self.update_seeds(pyramid, &zeta_ec);
+        Ok(Attempt {
+            zeta_ec: opt.zeta_ec,
+            inliers,
+            n_matched,
+            rms_px: opt.inlier_rms_px,
+            verdicts,
+        })
+    }
+
+    /// Steps 6–7 for a frame that tracked: the match verdicts, structure, seeds, keyframe.
+    /// The verdicts wait until here: matching around a wrong start fails good points, and
+    /// charging them would starve the second chances and the relocalisation that follow.
+    fn commit(&mut self, t_us: u64, pyramid: &Arc<Pyramid>, attempt: &mut Attempt) -> bool {
+        self.apply_verdicts(std::mem::take(&mut attempt.verdicts));
+        self.optimize_structure(&attempt.inliers);
+        let keyframe = self.needs_keyframe(&attempt.zeta_ec, &attempt.inliers);
+        self.update_seeds(pyramid, &attempt.zeta_ec);
         if keyframe {
-            self.insert_keyframe(t_us, pyramid, &zeta_ec, &inliers);
+            self.insert_keyframe(t_us, pyramid, &attempt.zeta_ec, &attempt.inliers);
         }
-        Ok((zeta_ec, inliers, n_matched, opt.inlier_rms_px, keyframe))
+        keyframe
     }
 
     /// Reprojection of the closest overlapping keyframes' points and of the candidates into
     /// the grid, then one direct match per cell in the fixed random order.
     fn reproject_and_match(
-        &mut self,
+        &self,
         pyramid: &Pyramid,
         zeta_ec: &Isometry3<f64>,
-    ) -> Vec<FrameMatch> {
+    ) -> (Vec<FrameMatch>, Vec<PointVerdict>) {
+        let mut verdicts = Vec::new();
         let grid = *self.detector.grid();
         let mut cells: Vec<Vec<(PointKind, PointId, Vector2<f64>)>> =
             vec![Vec::new(); grid.n_cells()];
@@ -836,12 +967,14 @@ impl Vns {
                         cells[cell].push((PointKind::Candidate, pid, px));
                     }
                 }
-                _ => self.fail_point(pid, 3),
+                _ => verdicts.push(PointVerdict::Failed {
+                    point: pid,
+                    units: 3,
+                }),
             }
         }
         let mut matches = Vec::with_capacity(self.cfg.max_matches);
-        let order = std::mem::take(&mut self.cell_order);
-        for &cell in &order {
+        for &cell in &self.cell_order {
             if matches.len() >= self.cfg.max_matches {
                 break;
             }
@@ -850,21 +983,36 @@ impl Vns {
             for (_, pid, px) in std::mem::take(list) {
                 match self.match_point(pid, &px, pyramid, zeta_ec) {
                     Some(m) => {
-                        if let Some(p) = self.map.point_mut(pid) {
-                            p.successes += 1;
-                            if p.kind == PointKind::Unknown && p.successes > GOOD_AFTER_SUCCESSES {
-                                p.kind = PointKind::Good;
-                            }
-                        }
+                        verdicts.push(PointVerdict::Matched { point: pid });
                         matches.push(m);
                         break;
                     }
-                    None => self.fail_point(pid, 1),
+                    None => verdicts.push(PointVerdict::Failed {
+                        point: pid,
+                        units: 1,
+                    }),
                 }
             }
         }
-        self.cell_order = order;
-        matches
+        (matches, verdicts)
+    }
+
+    /// Apply a tracked frame's match verdicts, in the order they were reached: a match counts
+    /// towards promotion to a good point, a failure towards deletion.
+    fn apply_verdicts(&mut self, verdicts: Vec<PointVerdict>) {
+        for verdict in verdicts {
+            match verdict {
+                PointVerdict::Matched { point } => {
+                    if let Some(p) = self.map.point_mut(point) {
+                        p.successes += 1;
+                        if p.kind == PointKind::Unknown && p.successes > GOOD_AFTER_SUCCESSES {
+                            p.kind = PointKind::Good;
+                        }
+                    }
+                }
+                PointVerdict::Failed { point, units } => self.fail_point(point, units),
+            }
+        }
     }
 
     /// Count failure units against a point; delete it past its kind's limit.
@@ -1398,6 +1546,62 @@ mod tests {
                     let truth = zeta_ew * pose_w;
                     let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
                     assert!(err_m < 5.0, "frame 30 tracked {err_m} m off");
+                }
+                states.push((k, out.state));
+            }
+        }
+        assert!(
+            states
+                .iter()
+                .filter(|(k, _)| *k >= 29)
+                .all(|(_, s)| *s == VnsState::Tracking),
+            "{states:?}"
+        );
+        let c = *vns.counters();
+        assert_eq!(
+            (c.tracking_losses, c.motion_model_recoveries),
+            (0, 1),
+            "{c:?}"
+        );
+    }
+
+    /// A roll-rate step at frame 30 (an aileron at a roll-in): the image turns by 3° (58 px,
+    /// 3.6 px at sparse alignment's level 4) more than the constant-velocity guess says. On
+    /// this texture alignment from the guess holds up to about 2.6°, and matching reaches a
+    /// few pixels only: without the turned starts the frame is lost (checked). The start
+    /// turned by 2δ = 1.5° leaves 1.5°, inside the basin. The rate then stays, so the next
+    /// frames track from their own alignment.
+    #[test]
+    fn a_roll_rate_step_beyond_the_alignment_basin_is_tracked_from_a_turned_start() {
+        let (cam, mut vns) = small_vns();
+        let ground = Ground {
+            seed: 5,
+            ground_z_m: 0.0,
+        };
+        let zeta_ew = zeta_ew();
+        let step_deg: f64 = 3.0;
+        let mut states = Vec::new();
+        for k in 0..34_u64 {
+            let t_us = 1_000_000 + k * 100_000;
+            let t = k as f64 * 0.1;
+            let roll_rad = step_deg.to_radians() * k.saturating_sub(29) as f64;
+            let pose_w = nadir_pose(30.0 * t, 1.5 * t, 1_000.0, [roll_rad, 0.0, 0.002 * t]);
+            let frame = ground.frame(&cam, &pose_w, t_us);
+            let start = VnsStart {
+                zeta_ec: zeta_ew * pose_w,
+                h_agl_m: 1_000.0,
+            };
+            if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
+                if k >= 30 {
+                    let truth = zeta_ew * pose_w;
+                    let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
+                    let err_deg = (truth.rotation.inverse() * out.zeta_ec.rotation)
+                        .angle()
+                        .to_degrees();
+                    assert!(
+                        err_m < 5.0 && err_deg < 0.1,
+                        "frame {k}: {err_m} m, {err_deg}°"
+                    );
                 }
                 states.push((k, out.state));
             }

@@ -144,7 +144,7 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
     );
     if let Some(c) = timer.navigator().vns_counters() {
         println!(
-            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} motion-model recoveries, {} bad frames",
+            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} second-chance recoveries, {} bad frames",
             c.initialisations,
             c.keyframes,
             c.tracking_losses,
