@@ -691,10 +691,13 @@ impl Vns {
     /// together move the pattern by about one period. In order:
     /// 1. alignment from the guess on the two finest levels only, where the guess is within
     ///    reach and the coarse period is not seen; then the bare guess;
-    /// 2. while tracking (not relocalising), full alignments from the guess turned by ±δ and
-    ///    ±2δ about the camera's x and y axes: an aileron or a gust changes the roll rate by
-    ///    more than a degree within one frame, so the constant-velocity guess is off by about
-    ///    one coarse period. Of the starts that pass the quality test, the most inliers win.
+    /// 2. while tracking (not relocalising), alignments on the fine levels and on all levels
+    ///    from the guess turned by ±δ and ±2δ about the camera's x and y axes: an aileron or
+    ///    a gust changes the roll rate by more than a degree within one frame, so the
+    ///    constant-velocity guess is off by about one coarse period. Over a street grid the
+    ///    coarse levels pull every start into the same wrong basin, and the fine levels reach
+    ///    only a fraction of a degree; each covers where the other fails. Of the starts that
+    ///    pass the quality test the most inliers win: a pose a period away keeps about half.
     ///
     /// A frame that tracks from its first alignment never comes here, so a flight without
     /// losses is unchanged by it.
@@ -751,19 +754,20 @@ impl Vns {
             let mut tau = Vector6::zeros();
             tau[3 + axis] = k * delta;
             let turned = se3::plus(guess, &tau);
-            let Some((start, n)) = self.align(reference, pyramid, &turned, &self.cfg.sparse_align)
-            else {
-                continue;
-            };
-            if n < min_aligned {
-                continue;
-            }
-            if let Some(a) = try_start(start)
-                && best
-                    .as_ref()
-                    .is_none_or(|b| a.inliers.len() > b.inliers.len())
-            {
-                best = Some(a);
+            for cfg in [&fine_cfg, &self.cfg.sparse_align] {
+                let Some((start, n)) = self.align(reference, pyramid, &turned, cfg) else {
+                    continue;
+                };
+                if n < min_aligned {
+                    continue;
+                }
+                if let Some(a) = try_start(start)
+                    && best
+                        .as_ref()
+                        .is_none_or(|b| a.inliers.len() > b.inliers.len())
+                {
+                    best = Some(a);
+                }
             }
         }
         best
