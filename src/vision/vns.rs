@@ -1624,4 +1624,54 @@ mod tests {
             "{c:?}"
         );
     }
+
+    /// A frame that tracks from no start is lost without touching the map: matching around
+    /// wrong starts fails good points, and charging them would delete some of the points the
+    /// relocalisation needs. Frame 30 shows other ground; frame 31 the right ground again.
+    #[test]
+    fn a_lost_frame_leaves_the_map_points_as_they_were() {
+        let (cam, mut vns) = small_vns();
+        let ground = Ground {
+            seed: 5,
+            ground_z_m: 0.0,
+        };
+        let elsewhere = Ground {
+            seed: 99,
+            ground_z_m: 0.0,
+        };
+        let zeta_ew = zeta_ew();
+        let snapshot = |vns: &Vns| -> Vec<(PointId, PointKind, u32, u32)> {
+            vns.map()
+                .points()
+                .map(|(id, p)| (id, p.kind, p.successes, p.failures))
+                .collect()
+        };
+        let mut before = Vec::new();
+        for k in 0..32_u64 {
+            let t_us = 1_000_000 + k * 100_000;
+            let pose_w = pose_at(k);
+            let scene = if k == 30 { &elsewhere } else { &ground };
+            let frame = scene.frame(&cam, &pose_w, t_us);
+            let start = VnsStart {
+                zeta_ec: zeta_ew * pose_w,
+                h_agl_m: 1_000.0,
+            };
+            if k == 30 {
+                assert_eq!(vns.state(), VnsState::Tracking);
+                before = snapshot(&vns);
+            }
+            let out = vns.process(&frame, Some(&start)).unwrap();
+            if k == 30 {
+                assert_eq!(out.map(|o| o.state), Some(VnsState::Relocalising));
+                assert_eq!(
+                    snapshot(&vns),
+                    before,
+                    "the lost frame changed the map's points"
+                );
+            }
+        }
+        let c = *vns.counters();
+        assert_eq!((c.tracking_losses, c.relocalisations), (1, 1), "{c:?}");
+        assert_eq!(vns.state(), VnsState::Tracking);
+    }
 }
