@@ -863,9 +863,11 @@ impl Vns {
         // equally (the tilt flip): sparse alignment, which stops at level 2, cannot tell them
         // apart and may start the optimisation in the wrong basin. The constant-velocity
         // prediction from the previous frames is a second start; the lower cost wins.
+        // (The prediction is skipped when it is the start itself: the bare-guess attempt.)
         let starts = std::iter::once(start).chain(
             self.last_motion
-                .map(|m| se3::renormalized(&(last.zeta_ec * m))),
+                .map(|m| se3::renormalized(&(last.zeta_ec * m)))
+                .filter(|predicted| *predicted != start),
         );
         let Some(opt) = starts
             .filter_map(|start| {
