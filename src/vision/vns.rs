@@ -9,11 +9,12 @@
 //! 2. reprojection of the points of the closest overlapping keyframes and of the candidates
 //!    into the grid, one direct match per cell ([`crate::vision::matcher`]);
 //! 3. pose optimisation ([`crate::vision::pose_opt`]), outliers dropped;
-//! 4. structure optimisation of the least recently refined points
+//! 4. tracking-quality check; on a failure, steps 2–4 again from second starts (sparse
+//!    alignment can settle a texture period away; [`Vns::second_chance`]), and only then a
+//!    tracking loss, which starts relocalisation against the closest keyframe. Steps 2–4 do not
+//!    touch the map ([`Vns::attempt`]); what follows applies to the start that tracked;
+//! 5. structure optimisation of the least recently refined points
 //!    ([`crate::vision::structure_opt`]);
-//! 5. tracking-quality check; on a failure, steps 2–5 again from the constant-velocity guess
-//!    (sparse alignment can settle a texture period away), and only then a tracking loss,
-//!    which starts relocalisation against the closest keyframe;
 //! 6. keyframe selection (no overlapping keyframe within 0.12 × the median depth), new seeds on
 //!    free cells, the furthest keyframe dropped beyond the map's size;
 //! 7. depth-filter update of every live seed by epipolar search; converged seeds become
@@ -202,9 +203,12 @@ pub struct VnsCounters {
     /// Successful relocalisations.
     pub relocalisations: u64,
     /// Frames tracked from a second start after tracking from sparse alignment's pose failed
-    /// (not losses): the motion model's guess, aligned again on the fine levels, bare, or
-    /// turned by ±δ, ±2δ (`Vns::second_chance`).
+    /// (`Vns::second_chance`): the motion model's guess aligned again on the fine levels,
+    /// bare, or turned by ±δ, ±2δ. Not losses; a relocalisation that tracks this way counts
+    /// here and in `relocalisations`.
     pub motion_model_recoveries: u64,
+    /// Of `motion_model_recoveries`, those from a turned start.
+    pub turned_start_recoveries: u64,
     /// Keyframes created.
     pub keyframes: u64,
     /// Seeds converged into candidates.
@@ -266,6 +270,15 @@ struct Attempt {
     verdicts: Vec<PointVerdict>,
 }
 
+/// Which second chance tracked a frame.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+enum SecondChance {
+    /// The constant-velocity guess, aligned on the fine levels or bare.
+    Guess,
+    /// A start turned away from the guess.
+    TurnedStart,
+}
+
 /// What matching said about one map point in the current frame, kept until the frame tracks.
 #[derive(Debug, Clone, Copy)]
 enum PointVerdict {
@@ -273,8 +286,9 @@ enum PointVerdict {
     Failed { point: PointId, units: u32 },
 }
 
-/// The turn δ between the second-chance starts, degrees (about one street-grid period at
-/// sparse alignment's coarsest level).
+/// The turn δ between the second-chance starts, degrees: 14.6 px at level 0, about half the
+/// reach of sparse alignment over the city's street grid (a roll-rate step of 10–15°/s puts
+/// the constant-velocity guess 1–1.5° off).
 const SECOND_CHANCE_TURN_DEG: f64 = 0.75;
 
 /// Seeds are updated only from frames that see them with at least this parallax, px.
@@ -629,15 +643,23 @@ impl Vns {
                 reference.as_ref(),
                 &pyramid,
                 &guess,
-                aligned.map(|(zeta, _)| zeta),
+                aligned
+                    .filter(|&(_, n)| n >= min_aligned)
+                    .map(|(zeta, _)| zeta),
                 &last,
                 min_aligned,
                 relocalising,
             );
-            if second.is_some() {
-                self.counters.motion_model_recoveries += 1;
+            match second {
+                Ok((attempt, kind)) => {
+                    self.counters.motion_model_recoveries += 1;
+                    if kind == SecondChance::TurnedStart {
+                        self.counters.turned_start_recoveries += 1;
+                    }
+                    Ok(attempt)
+                }
+                Err(most_matched) => Err(n.max(most_matched)),
             }
-            second.ok_or(n)
         });
         match result {
             Ok(mut attempt) => {
@@ -689,18 +711,19 @@ impl Vns {
     /// houses) sparse alignment's coarse levels can lock a pattern period away: tens to
     /// hundreds of metres and up to degrees from the guess, where a tilt and a lateral shift
     /// together move the pattern by about one period. In order:
-    /// 1. alignment from the guess on the two finest levels only, where the guess is within
-    ///    reach and the coarse period is not seen; then the bare guess;
+    /// 1. alignment from the guess on the two finest alignment levels only (3→2), where the
+    ///    guess is within reach and the coarse period is not seen; then the bare guess. The
+    ///    first that tracks is taken;
     /// 2. while tracking (not relocalising), alignments on the fine levels and on all levels
     ///    from the guess turned by ±δ and ±2δ about the camera's x and y axes: an aileron or
-    ///    a gust changes the roll rate by more than a degree within one frame, so the
-    ///    constant-velocity guess is off by about one coarse period. Over a street grid the
+    ///    a gust changes the roll rate by 10–15°/s within one frame, so the constant-velocity
+    ///    guess is off by more than sparse alignment reaches over a street grid. There the
     ///    coarse levels pull every start into the same wrong basin, and the fine levels reach
     ///    only a fraction of a degree; each covers where the other fails. Of the starts that
     ///    pass the quality test the most inliers win: a pose a period away keeps about half.
     ///
-    /// A frame that tracks from its first alignment never comes here, so a flight without
-    /// losses is unchanged by it.
+    /// A frame that tracks from its first alignment never comes here, so a flight in which
+    /// every frame does is unchanged by it. `Err` carries the most matches any start found.
     #[allow(clippy::too_many_arguments)]
     fn second_chance(
         &self,
@@ -711,17 +734,20 @@ impl Vns {
         last: &LastFrame,
         min_aligned: usize,
         relocalising: bool,
-    ) -> Option<Attempt> {
+    ) -> Result<(Attempt, SecondChance), usize> {
         let mut tried: Vec<Isometry3<f64>> = aligned.into_iter().collect();
+        let mut most_matched = 0;
         let mut try_start = |start: Isometry3<f64>| {
             if tried.contains(&start) {
                 return None;
             }
             tried.push(start);
-            self.attempt(pyramid, start, last).ok()
+            self.attempt(pyramid, start, last)
+                .map_err(|n| most_matched = most_matched.max(n))
+                .ok()
         };
         let fine_cfg = SparseAlignConfig {
-            max_level: self.cfg.sparse_align.min_level + 1,
+            max_level: (self.cfg.sparse_align.min_level + 1).min(self.cfg.sparse_align.max_level),
             ..self.cfg.sparse_align
         };
         let fine = reference
@@ -729,48 +755,47 @@ impl Vns {
             .filter(|&(_, n)| n >= min_aligned)
             .map(|(zeta, _)| zeta);
         if let Some(a) = fine.and_then(&mut try_start) {
-            return Some(a);
+            return Ok((a, SecondChance::Guess));
         }
         if let Some(a) = try_start(*guess) {
-            return Some(a);
+            return Ok((a, SecondChance::Guess));
         }
-        if relocalising {
-            return None;
-        }
-        let reference = reference?;
-        let delta = SECOND_CHANCE_TURN_DEG.to_radians();
         let mut best: Option<Attempt> = None;
-        for (k, axis) in [
-            (1.0, 0),
-            (-1.0, 0),
-            (1.0, 1),
-            (-1.0, 1),
-            (2.0, 0),
-            (-2.0, 0),
-            (2.0, 1),
-            (-2.0, 1),
-        ] {
-            // τ = [v; ω]: a turn about the camera's x (index 3) or y (index 4) axis.
-            let mut tau = Vector6::zeros();
-            tau[3 + axis] = k * delta;
-            let turned = se3::plus(guess, &tau);
-            for cfg in [&fine_cfg, &self.cfg.sparse_align] {
-                let Some((start, n)) = self.align(reference, pyramid, &turned, cfg) else {
-                    continue;
-                };
-                if n < min_aligned {
-                    continue;
-                }
-                if let Some(a) = try_start(start)
-                    && best
-                        .as_ref()
-                        .is_none_or(|b| a.inliers.len() > b.inliers.len())
-                {
-                    best = Some(a);
+        if let Some(reference) = reference.filter(|_| !relocalising) {
+            let delta = SECOND_CHANCE_TURN_DEG.to_radians();
+            for (k, axis) in [
+                (1.0, 0),
+                (-1.0, 0),
+                (1.0, 1),
+                (-1.0, 1),
+                (2.0, 0),
+                (-2.0, 0),
+                (2.0, 1),
+                (-2.0, 1),
+            ] {
+                // τ = [v; ω]: a turn about the camera's x (index 3) or y (index 4) axis.
+                let mut tau = Vector6::zeros();
+                tau[3 + axis] = k * delta;
+                let turned = se3::plus(guess, &tau);
+                for cfg in [&fine_cfg, &self.cfg.sparse_align] {
+                    let Some((start, n)) = self.align(reference, pyramid, &turned, cfg) else {
+                        continue;
+                    };
+                    if n < min_aligned {
+                        continue;
+                    }
+                    if let Some(a) = try_start(start)
+                        && best
+                            .as_ref()
+                            .is_none_or(|b| a.inliers.len() > b.inliers.len())
+                    {
+                        best = Some(a);
+                    }
                 }
             }
         }
-        best
+        best.map(|a| (a, SecondChance::TurnedStart))
+            .ok_or(most_matched)
     }
 
     /// Sparse alignment of `pyramid` against `reference`, starting from `guess`; the pose and
@@ -836,7 +861,7 @@ impl Vns {
         })
     }
 
-    /// Steps 2–5 from a start pose (matching, pose optimisation, the quality test), without
+    /// Steps 2–4 from a start pose (matching, pose optimisation, the quality test), without
     /// touching the map: `Err(matched)` on a tracking failure.
     fn attempt(
         &self,
@@ -903,7 +928,7 @@ impl Vns {
         })
     }
 
-    /// Steps 6–7 for a frame that tracked: the match verdicts, structure, seeds, keyframe.
+    /// Steps 5–7 for a frame that tracked: the match verdicts, structure, keyframe, seeds.
     /// The verdicts wait until here: matching around a wrong start fails good points, and
     /// charging them would starve the second chances and the relocalisation that follow.
     fn commit(&mut self, t_us: u64, pyramid: &Arc<Pyramid>, attempt: &mut Attempt) -> bool {
@@ -1574,9 +1599,8 @@ mod tests {
     /// A roll-rate step at frame 30 (an aileron at a roll-in): the image turns by 3° (58 px,
     /// 3.6 px at sparse alignment's level 4) more than the constant-velocity guess says. On
     /// this texture alignment from the guess holds up to about 2.6°, and matching reaches a
-    /// few pixels only: without the turned starts the frame is lost (checked). The start
-    /// turned by 2δ = 1.5° leaves 1.5°, inside the basin. The rate then stays, so the next
-    /// frames track from their own alignment.
+    /// few pixels only, so the frame is tracked from a turned start (counted apart) or lost.
+    /// The rate then stays, so the next frames track from their own alignment.
     #[test]
     fn a_roll_rate_step_beyond_the_alignment_basin_is_tracked_from_a_turned_start() {
         let (cam, mut vns) = small_vns();
@@ -1621,8 +1645,12 @@ mod tests {
         );
         let c = *vns.counters();
         assert_eq!(
-            (c.tracking_losses, c.motion_model_recoveries),
-            (0, 1),
+            (
+                c.tracking_losses,
+                c.motion_model_recoveries,
+                c.turned_start_recoveries
+            ),
+            (0, 1, 1),
             "{c:?}"
         );
     }
@@ -1642,13 +1670,15 @@ mod tests {
             ground_z_m: 0.0,
         };
         let zeta_ew = zeta_ew();
-        let snapshot = |vns: &Vns| -> Vec<(PointId, PointKind, u32, u32)> {
-            vns.map()
+        let snapshot = |vns: &Vns| {
+            let points: Vec<_> = vns
+                .map()
                 .points()
-                .map(|(id, p)| (id, p.kind, p.successes, p.failures))
-                .collect()
+                .map(|(id, p)| (id, p.p_e, p.kind, p.successes, p.failures))
+                .collect();
+            (points, vns.map().keyframes().count(), vns.seeds.len())
         };
-        let mut before = Vec::new();
+        let mut before = None;
         for k in 0..32_u64 {
             let t_us = 1_000_000 + k * 100_000;
             let pose_w = pose_at(k);
@@ -1660,15 +1690,15 @@ mod tests {
             };
             if k == 30 {
                 assert_eq!(vns.state(), VnsState::Tracking);
-                before = snapshot(&vns);
+                before = Some(snapshot(&vns));
             }
             let out = vns.process(&frame, Some(&start)).unwrap();
             if k == 30 {
                 assert_eq!(out.map(|o| o.state), Some(VnsState::Relocalising));
                 assert_eq!(
-                    snapshot(&vns),
+                    Some(snapshot(&vns)),
                     before,
-                    "the lost frame changed the map's points"
+                    "the lost frame changed the map"
                 );
             }
         }

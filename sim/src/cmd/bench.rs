@@ -144,12 +144,13 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
     );
     if let Some(c) = timer.navigator().vns_counters() {
         println!(
-            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} second-chance recoveries, {} bad frames",
+            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} second-chance recoveries ({} from turned starts), {} bad frames",
             c.initialisations,
             c.keyframes,
             c.tracking_losses,
             c.relocalisations,
             c.motion_model_recoveries,
+            c.turned_start_recoveries,
             c.bad_frames
         );
     }
