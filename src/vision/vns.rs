@@ -1393,6 +1393,31 @@ mod tests {
         (cam, Vns::new(cam, cfg, 7).unwrap())
     }
 
+    /// The textured plane most tests fly over.
+    const GROUND_5: Ground = Ground {
+        seed: 5,
+        ground_z_m: 0.0,
+    };
+
+    /// `x̊₀` at a scene pose 1,000 m over the plane: the exact pose and height.
+    fn start_at(zeta_ew: &Isometry3<f64>, pose_w: &Isometry3<f64>) -> VnsStart {
+        VnsStart {
+            zeta_ec: zeta_ew * pose_w,
+            h_agl_m: 1_000.0,
+        }
+    }
+
+    /// Every output from frame `k0` on is tracking.
+    fn assert_tracking_from(states: &[(u64, VnsState)], k0: u64) {
+        assert!(
+            states
+                .iter()
+                .filter(|(k, _)| *k >= k0)
+                .all(|(_, s)| *s == VnsState::Tracking),
+            "{states:?}"
+        );
+    }
+
     /// The local level frame of the scene (z down, on the ground plane) in ECEF.
     fn zeta_ew() -> Isometry3<f64> {
         let origin = Geodetic {
@@ -1482,10 +1507,7 @@ mod tests {
     #[test]
     fn a_lost_track_is_counted_and_relocalised_and_bad_frames_rejected() {
         let (cam, mut vns) = small_vns();
-        let ground = Ground {
-            seed: 5,
-            ground_z_m: 0.0,
-        };
+        let ground = GROUND_5;
         let zeta_ew = zeta_ew();
         let mut t_us = 1_000_000;
         let mut states = Vec::new();
@@ -1502,10 +1524,7 @@ mod tests {
             } else {
                 ground.frame(&cam, &pose_w, t_us)
             };
-            let start = VnsStart {
-                zeta_ec: zeta_ew * pose_w,
-                h_agl_m: 1_000.0,
-            };
+            let start = start_at(&zeta_ew, &pose_w);
             if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
                 states.push((k, out.state));
             }
@@ -1552,10 +1571,7 @@ mod tests {
     #[test]
     fn a_frame_whose_alignment_settles_wrong_is_tracked_from_the_motion_model() {
         let (cam, mut vns) = small_vns();
-        let ground = Ground {
-            seed: 5,
-            ground_z_m: 0.0,
-        };
+        let ground = GROUND_5;
         let zeta_ew = zeta_ew();
         let mut states = Vec::new();
         for k in 0..33_u64 {
@@ -1568,10 +1584,7 @@ mod tests {
                 last.pyramid = Arc::new(Pyramid::from_frame(&elsewhere, &cam).unwrap());
             }
             let frame = ground.frame(&cam, &pose_w, t_us);
-            let start = VnsStart {
-                zeta_ec: zeta_ew * pose_w,
-                h_agl_m: 1_000.0,
-            };
+            let start = start_at(&zeta_ew, &pose_w);
             if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
                 if k == 30 {
                     let truth = zeta_ew * pose_w;
@@ -1581,13 +1594,7 @@ mod tests {
                 states.push((k, out.state));
             }
         }
-        assert!(
-            states
-                .iter()
-                .filter(|(k, _)| *k >= 29)
-                .all(|(_, s)| *s == VnsState::Tracking),
-            "{states:?}"
-        );
+        assert_tracking_from(&states, 29);
         let c = *vns.counters();
         assert_eq!(
             (c.tracking_losses, c.motion_model_recoveries),
@@ -1604,10 +1611,7 @@ mod tests {
     #[test]
     fn a_roll_rate_step_beyond_the_alignment_basin_is_tracked_from_a_turned_start() {
         let (cam, mut vns) = small_vns();
-        let ground = Ground {
-            seed: 5,
-            ground_z_m: 0.0,
-        };
+        let ground = GROUND_5;
         let zeta_ew = zeta_ew();
         let step_deg: f64 = 3.0;
         let mut states = Vec::new();
@@ -1617,10 +1621,7 @@ mod tests {
             let roll_rad = step_deg.to_radians() * k.saturating_sub(29) as f64;
             let pose_w = nadir_pose(30.0 * t, 1.5 * t, 1_000.0, [roll_rad, 0.0, 0.002 * t]);
             let frame = ground.frame(&cam, &pose_w, t_us);
-            let start = VnsStart {
-                zeta_ec: zeta_ew * pose_w,
-                h_agl_m: 1_000.0,
-            };
+            let start = start_at(&zeta_ew, &pose_w);
             if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
                 if k >= 30 {
                     let truth = zeta_ew * pose_w;
@@ -1636,13 +1637,7 @@ mod tests {
                 states.push((k, out.state));
             }
         }
-        assert!(
-            states
-                .iter()
-                .filter(|(k, _)| *k >= 29)
-                .all(|(_, s)| *s == VnsState::Tracking),
-            "{states:?}"
-        );
+        assert_tracking_from(&states, 29);
         let c = *vns.counters();
         assert_eq!(
             (
@@ -1661,10 +1656,7 @@ mod tests {
     #[test]
     fn a_lost_frame_leaves_the_map_points_as_they_were() {
         let (cam, mut vns) = small_vns();
-        let ground = Ground {
-            seed: 5,
-            ground_z_m: 0.0,
-        };
+        let ground = GROUND_5;
         let elsewhere = Ground {
             seed: 99,
             ground_z_m: 0.0,
@@ -1684,10 +1676,7 @@ mod tests {
             let pose_w = pose_at(k);
             let scene = if k == 30 { &elsewhere } else { &ground };
             let frame = scene.frame(&cam, &pose_w, t_us);
-            let start = VnsStart {
-                zeta_ec: zeta_ew * pose_w,
-                h_agl_m: 1_000.0,
-            };
+            let start = start_at(&zeta_ew, &pose_w);
             if k == 30 {
                 assert_eq!(vns.state(), VnsState::Tracking);
                 before = Some(snapshot(&vns));
