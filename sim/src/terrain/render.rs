@@ -1325,18 +1325,40 @@ impl GroundBlock {
         self.y[k] = y;
     }
 
-    /// Midpoint of the ground points at `a` and `b` into `k`, if both are ground.
-    #[inline(always)]
-    fn set_mid(&mut self, k: usize, a: usize, b: usize) -> bool {
-        let (ta, tb) = (self.t[a], self.t[b]);
-        if ta.is_nan() || tb.is_nan() {
-            return false;
+    /// Row `r` as the midpoints of rows `r − 1` and `r + 1`, in branch-free (vectorised) loops.
+    /// A ground depth is finite, so the midpoint depth is NaN exactly where a neighbour is sky;
+    /// returns whether the row has such pixels (the caller solves them).
+    fn mid_row(&mut self, r: usize) -> bool {
+        let wu = self.wu;
+        for a in [&mut self.t, &mut self.x, &mut self.y] {
+            let (head, tail) = a.split_at_mut(r * wu);
+            let above = &head[(r - 1) * wu..];
+            let (row, below) = tail.split_at_mut(wu);
+            for ((m, &p), &q) in row.iter_mut().zip(above).zip(&below[..wu]) {
+                *m = 0.5 * (p + q);
+            }
         }
-        self.t[k] = 0.5 * (ta + tb);
-        self.x[k] = 0.5 * (self.x[a] + self.x[b]);
-        self.y[k] = 0.5 * (self.y[a] + self.y[b]);
-        true
+        any_nan(&self.t[r * wu..(r + 1) * wu])
     }
+
+    /// The odd columns of row `r` as the midpoints of their even neighbours (but the last
+    /// column), branch-free; returns whether any of them has a sky neighbour (NaN depth).
+    fn mid_odd_columns(&mut self, r: usize) -> bool {
+        let row = r * self.wu..(r + 1) * self.wu;
+        for a in [&mut self.t, &mut self.x, &mut self.y] {
+            let a = &mut a[row.clone()];
+            for col in (1..a.len().saturating_sub(1)).step_by(2) {
+                a[col] = 0.5 * (a[col - 1] + a[col + 1]);
+            }
+        }
+        any_nan(&self.t[row])
+    }
+}
+
+/// Whether any value is NaN (a fold without early exit, so it vectorises).
+#[inline]
+fn any_nan(a: &[f64]) -> bool {
+    a.iter().fold(false, |any, v| any | v.is_nan())
 }
 
 /// The intersection of the rays of a block of rows with the terrain.
@@ -1450,8 +1472,11 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     ) {
         let wu = self.wu;
         let base = r * wu;
+        if !blk.mid_odd_columns(r) {
+            return;
+        }
         for col in (1..wu.saturating_sub(1)).step_by(2) {
-            if !blk.set_mid(base + col, base + col - 1, base + col + 1) {
+            if blk.t[base + col].is_nan() {
                 let guess = predict(
                     self.above(blk, r, gap, col, 1),
                     self.above(blk, r, gap, col, 2),
@@ -1503,13 +1528,15 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
                 self.solve_row(blk, r, v0 + r, 2, 1, st);
                 continue;
             }
-            let mut rays: Option<RowRays> = None;
+            if !blk.mid_row(r) {
+                continue;
+            }
+            let rays = (self.rays_of_row)((v0 + r) as f64);
             for col in 0..wu {
                 let k = r * wu + col;
-                if !blk.set_mid(k, k - wu, k + wu) {
-                    let rays = rays.get_or_insert_with(|| (self.rays_of_row)((v0 + r) as f64));
+                if blk.t[k].is_nan() {
                     let guess = predict(blk.t[k - wu], f64::NAN, &Pred::default());
-                    blk.set(k, self.solve_alone(rays, col, guess, st));
+                    blk.set(k, self.solve_alone(&rays, col, guess, st));
                 }
             }
         }
