@@ -837,21 +837,7 @@ impl Renderer {
             all_monotone,
             camera_ground_t,
         };
-        let lod_of = |ray: &Ray, t: f64| -> (f64, f64) {
-            // Footprint on level ground, m: t|u|/f / cos(incidence), cos(incidence) =
-            // descent/|u| ≥ 0.05, i.e. t|u|²/(f·descent): one division and no square root
-            // unless the ray grazes the ground.
-            let descent = -(ray.ch1 + 2.0 * ray.ch2 * t);
-            let foot_m = if descent > 0.0 && descent * descent >= 0.0025 * ray.n2 {
-                t * ray.n2 / (f_px * descent)
-            } else {
-                t * ray.norm() / (f_px * 0.05)
-            };
-            (
-                fast_log2(foot_m.max(1e-3)).clamp(0.0, f64::from(MAX_LEVEL)),
-                foot_m,
-            )
-        };
+        let lod_of = |ray: &Ray, t: f64| lod_footprint(ray.ch1, ray.ch2, ray.n2, t, f_px);
         const COARSE: u32 = 16;
         let coarse: Vec<(RenderStats, [[f64; 4]; (MAX_LEVEL + 1) as usize])> = (0..h)
             .step_by(COARSE as usize)
@@ -1022,14 +1008,7 @@ impl Renderer {
                     let mut lods = std::mem::take(&mut blk.lod);
                     lods.clear();
                     for r in 0..n_rows {
-                        let rays = row_rays((v0 + r) as f64);
-                        lods.extend(blk.row(r).0.iter().step_by(4).enumerate().map(|(g, &t)| {
-                            if t.is_nan() {
-                                f64::NAN
-                            } else {
-                                lod_of(&rays.at((4 * g) as f64), t).0
-                            }
-                        }));
+                        lods_of_row(&row_rays((v0 + r) as f64), blk.row(r).0, f_px, &mut lods);
                     }
                     let mut vals = std::mem::take(&mut blk.vals);
                     vals.clear();
@@ -1253,18 +1232,67 @@ fn approx_normal(seed: u64, idx: i64) -> f32 {
     ((s - 2.0) * 3.0_f64.sqrt()) as f32
 }
 
+/// Level of detail (mip level, clamped to the levels there are) and footprint on level
+/// ground, m, of the ray with height coefficients `ch1`, `ch2` and `|u|² = n2` at depth `t`.
+///
+/// The footprint is `t|u|/f / cos(incidence)` with `cos(incidence) = descent/|u|` floored at
+/// 0.05: `t|u|²/(f·descent)`, or `t|u|/(0.05 f)` for grazing rays. Both are computed and one is
+/// selected (no branch), so that [`lods_of_row`] vectorises; the values are those of the
+/// branching form.
+#[inline(always)]
+fn lod_footprint(ch1: f64, ch2: f64, n2: f64, t: f64, f_px: f64) -> (f64, f64) {
+    let descent = -(ch1 + 2.0 * ch2 * t);
+    let steep = t * n2 / (f_px * descent);
+    let grazing = t * n2.sqrt() / (f_px * 0.05);
+    let foot_m = if descent > 0.0 && descent * descent >= 0.0025 * n2 {
+        steep
+    } else {
+        grazing
+    };
+    (
+        fast_log2(foot_m.max(1e-3)).clamp(0.0, f64::from(MAX_LEVEL)),
+        foot_m,
+    )
+}
+
+/// Levels of detail of one row at every 4th column (NaN for sky), appended to `out`: the
+/// shading's mip levels and blend, which vary slowly along a row. A loop of independent,
+/// branch-free iterations over contiguous depths, so that it vectorises (two divisions and a
+/// square root per group of four pixels).
+#[inline(never)]
+fn lods_of_row(rays: &RowRays, t_row: &[f64], f_px: f64, out: &mut Vec<f64>) {
+    let (h1, h1u) = rays.lin[2];
+    let (h2, h2u, h2uu) = rays.quad[2];
+    let (n0, nu, nuu) = rays.n2;
+    let start = out.len();
+    // Every 4th depth first (contiguous, so that the loop below vectorises).
+    out.extend(t_row.iter().step_by(4));
+    for (g, lod) in out[start..].iter_mut().enumerate() {
+        let t = *lod;
+        // The column as a float through i32 (which converts in vector registers).
+        let u = f64::from(4 * g as i32);
+        // The coefficients of `RowRays::at(u)`, same operations.
+        let ch1 = h1 + u * h1u;
+        let ch2 = h2 + u * (h2u + u * h2uu);
+        let n2 = n0 + u * (nu + u * nuu);
+        let l = lod_footprint(ch1, ch2, n2, t, f_px).0;
+        *lod = if t.is_nan() { f64::NAN } else { l };
+    }
+}
+
 /// Fast base-2 logarithm (|error| < 1e-4) for the mip level.
-#[inline]
+#[inline(always)]
 fn fast_log2(x: f64) -> f64 {
     let bits = x.to_bits();
-    let e = ((bits >> 52) & 0x7ff) as i64 - 1023;
+    // Through i32, which converts to f64 in vector registers (i64 does not before AVX-512).
+    let e = (((bits >> 52) & 0x7ff) as i32) - 1023;
     let m = f64::from_bits((bits & 0x000f_ffff_ffff_ffff) | 0x3ff0_0000_0000_0000);
     // ln m = 2 atanh s, s = (m − 1)/(m + 1) ∈ [0, 1/3): four odd terms, error < 2e-5.
     let s = (m - 1.0) / (m + 1.0);
     let s2 = s * s;
     let ln = 2.0 * s * (1.0 + s2 * (1.0 / 3.0 + s2 * (0.2 + s2 * (1.0 / 7.0))));
     let p = ln * std::f64::consts::LOG2_E;
-    e as f64 + p
+    f64::from(e) + p
 }
 
 /// Pixel-to-pixel memory of a row: the last two solutions' depths.
