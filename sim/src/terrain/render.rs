@@ -34,6 +34,11 @@
 //!   before the main pass; a pixel that would still fall outside them is evaluated exactly.
 //!   Each level's tiles are copied side by side into one atlas, kept for the next frame
 //!   ([`AtlasCache`]), which usually sees the same tiles.
+//! - Speed without changing a bit: the hot loops are split into phases of independent,
+//!   branch-free iterations (midpoints, levels of detail, texel coordinates, blends) that the
+//!   compiler vectorises, solves below a block's first row run four at a time, and the main
+//!   pass has an AVX2 build chosen at run time ([`MainPass`]). The Monte Carlo run files, which
+//!   hold the VNS's errors on these images, stay reproducible (docs/PERFORMANCE.md).
 
 use ianav::math::wgs84;
 use ianav::vision::camera::Camera;
@@ -218,6 +223,8 @@ pub struct RenderStats {
 pub struct Renderer {
     camera: Camera,
     options: RenderOptions,
+    /// Never run the AVX2 build of the main pass (tests compare the two).
+    portable: bool,
 }
 
 /// Quadratic map from the local NED offset `q` (m, from the camera) to
@@ -466,6 +473,61 @@ impl LevelView<'_> {
         Some(top + wy * (bot - top))
     }
 
+    /// [`Self::fixed`] and [`Self::sample_fixed`] of the points `(x, y)` (at most
+    /// `4 · RUN_GROUPS`) into `out`, the same operations in three loops of independent
+    /// iterations: texel indices and weights (vectorised), loads, bilinear blends
+    /// (vectorised). `false` if any point falls outside the atlas.
+    #[inline(always)]
+    fn sample_run(&self, x: &[f64], y: &[f64], out: &mut [f32]) -> bool {
+        const N: usize = 4 * RUN_GROUPS;
+        let m = out.len().min(x.len()).min(y.len()).min(N);
+        // Indices in u32 (vector multiplies): the atlas must be addressable so.
+        if self.data.len() >= u32::MAX as usize {
+            return false;
+        }
+        let (w1, h1) = ((self.width - 1) as u64, (self.height - 1) as u64);
+        let stride = self.stride as u32;
+        let mut idx = [0_u32; N];
+        let mut wx = [0.0_f32; N];
+        let mut wy = [0.0_f32; N];
+        let mut outside = false;
+        for i in 0..m {
+            let (gx, gy) = self.fixed(x[i], y[i]);
+            // A logical shift: a negative coordinate becomes a cell ≥ 2⁴⁷, rejected as the
+            // arithmetic shift's negative cell is.
+            let (ix, iy) = ((gx as u64) >> FIX_BITS, (gy as u64) >> FIX_BITS);
+            outside |= (ix >= w1) | (iy >= h1);
+            idx[i] = (iy as u32).wrapping_mul(stride).wrapping_add(ix as u32);
+            wx[i] = ((gx & FIX_MASK) as i32) as f32 * (1.0 / FIX_ONE as f32);
+            wy[i] = ((gy & FIX_MASK) as i32) as f32 * (1.0 / FIX_ONE as f32);
+        }
+        if outside {
+            return false;
+        }
+        // The four texels of each point, packed a00 | a10 << 8 | a01 << 16 | a11 << 24.
+        let s = self.stride;
+        let mut texels = [0_u32; N];
+        for i in 0..m {
+            let k = idx[i] as usize;
+            let Some(q) = self.data.get(k..k + s + 2) else {
+                return false;
+            };
+            texels[i] = u32::from(q[0])
+                | u32::from(q[1]) << 8
+                | u32::from(q[s]) << 16
+                | u32::from(q[s + 1]) << 24;
+        }
+        for i in 0..m {
+            let p = texels[i];
+            let texel = |b: u32| ((p >> b) & 0xff) as i32 as f32;
+            let (a00, a10, a01, a11) = (texel(0), texel(8), texel(16), texel(24));
+            let top = a00 + wx[i] * (a10 - a00);
+            let bot = a01 + wx[i] * (a11 - a01);
+            out[i] = top + wy[i] * (bot - top);
+        }
+        true
+    }
+
     /// [`Self::fixed`] and [`Self::sample_fixed`] of four points in straight-line code (the
     /// same operations, so the same values), `None` if any of them falls outside the frame's
     /// tiles: the coordinates, bounds checks and blends of the four run side by side.
@@ -627,6 +689,7 @@ impl Renderer {
         Self {
             camera,
             options: RenderOptions::default(),
+            portable: false,
         }
     }
 
@@ -644,7 +707,11 @@ impl Renderer {
                 options.noise_sigma_grey
             )));
         }
-        Ok(Self { camera, options })
+        Ok(Self {
+            camera,
+            options,
+            portable: false,
+        })
     }
 
     /// The camera.
@@ -655,6 +722,14 @@ impl Renderer {
     /// The options.
     pub fn options(&self) -> &RenderOptions {
         &self.options
+    }
+
+    /// The same renderer restricted to the baseline-CPU build of its main pass (the AVX2 build
+    /// must give the same bits; tests compare them).
+    #[doc(hidden)]
+    pub fn portable(mut self) -> Self {
+        self.portable = true;
+        self
     }
 
     /// Replace the noise seed (one per frame).
@@ -976,6 +1051,18 @@ impl Renderer {
             gain,
             sky: f32::from(opts.sky_grey),
         };
+        let pass = MainPass {
+            row_rays: &row_rays,
+            scene: &scene,
+            shade: &shade,
+            f_px,
+            wu,
+            image_rows: h as usize,
+            rows_per_chunk,
+            interpolate,
+            opts,
+            avx2: !self.portable && has_avx2(),
+        };
         let mut pixels = vec![0_u8; n_px];
         let stats: Vec<RenderStats> = pixels
             .par_chunks_mut(wu * rows_per_chunk)
@@ -984,71 +1071,7 @@ impl Renderer {
             // interpolation of its last row; every value read is written first in each block.
             .map_init(
                 || GroundBlock::new(wu, rows_per_chunk + 1),
-                |blk, (chunk, rows)| {
-                    let mut st = RenderStats::default();
-                    let v0 = chunk * rows_per_chunk;
-                    let n_rows = rows.len() / wu;
-                    let geom = BlockGeometry {
-                        rays_of_row: &row_rays,
-                        scene: &scene,
-                        wu,
-                    };
-                    if interpolate {
-                        geom.solve_interpolated(blk, v0, n_rows, h as usize, &mut st);
-                    } else {
-                        for r in 0..n_rows {
-                            geom.solve_row(blk, r, v0 + r, 1, 1, &mut st);
-                        }
-                    }
-                    let ng = wu.div_ceil(4);
-                    // The footprint varies slowly along a row: its mip levels and blend are
-                    // recomputed every 4 pixels. Those levels of detail are computed first, in
-                    // a loop of independent iterations, so that their square root and
-                    // divisions overlap instead of stalling the sampling loop.
-                    let mut lods = std::mem::take(&mut blk.lod);
-                    lods.clear();
-                    for r in 0..n_rows {
-                        lods_of_row(&row_rays((v0 + r) as f64), blk.row(r).0, f_px, &mut lods);
-                    }
-                    let mut vals = std::mem::take(&mut blk.vals);
-                    vals.clear();
-                    vals.resize(wu * n_rows, 0.0);
-                    // Shading in column strips across the block's rows, so that a strip's
-                    // texels can stay in the L1 cache from one row to the next even when rows
-                    // run along texture y (one cache line per texel row). Same pixels; no gain
-                    // measurable within the noise on the flights measured (docs/PERFORMANCE.md).
-                    for c0 in (0..wu).step_by(SHADE_STRIP) {
-                        let c1 = (c0 + SHADE_STRIP).min(wu);
-                        for r in 0..n_rows {
-                            let (row_t, row_x, row_y) = blk.row(r);
-                            shade.row(
-                                &mut vals[r * wu + c0..r * wu + c1],
-                                (&row_t[c0..c1], &row_x[c0..c1], &row_y[c0..c1]),
-                                &lods[r * ng + c0 / 4..(r + 1) * ng],
-                                |col, t| {
-                                    lod_of(&row_rays((v0 + r) as f64).at((c0 + col) as f64), t).0
-                                },
-                                &mut st,
-                            );
-                        }
-                    }
-                    // Noise and rounding in a loop of their own (vectorised without noise).
-                    if opts.noise_sigma_grey > 0.0 {
-                        let sigma = opts.noise_sigma_grey as f32;
-                        let base = chunk * rows_per_chunk * wu;
-                        for (k, (out, v)) in rows.iter_mut().zip(&vals).enumerate() {
-                            let n = approx_normal(opts.noise_seed, (base + k) as i64);
-                            *out = to_grey(v + sigma * n);
-                        }
-                    } else {
-                        for (out, v) in rows.iter_mut().zip(&vals) {
-                            *out = to_grey(*v);
-                        }
-                    }
-                    blk.vals = vals;
-                    blk.lod = lods;
-                    st
-                },
+                |blk, (chunk, rows)| pass.block(blk, chunk, rows),
             )
             .collect();
         let mut total = RenderStats::default();
@@ -1077,8 +1100,143 @@ impl Renderer {
     }
 }
 
+/// The main pass over one block of image rows: ground points, levels of detail, shading and
+/// rounding. Compiled twice: for the baseline CPU and, where the CPU has them, with AVX2 and
+/// its companions, under which the vectorised loops run twice as wide. Both builds perform
+/// the same IEEE operations (Rust never fuses a multiply and an add on its own), so they give
+/// the same bits (test `the_avx2_build_renders_the_portable_bits`).
+struct MainPass<'a, F: Fn(f64) -> RowRays> {
+    row_rays: &'a F,
+    scene: &'a Scene<'a>,
+    shade: &'a Shader<'a>,
+    f_px: f64,
+    wu: usize,
+    image_rows: usize,
+    rows_per_chunk: usize,
+    interpolate: bool,
+    opts: RenderOptions,
+    /// Run the AVX2 build (set only where the CPU has been found to support it).
+    avx2: bool,
+}
+
+/// Whether this CPU runs [`MainPass::block_avx2`].
+fn has_avx2() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::arch::is_x86_feature_detected!("avx2")
+            && std::arch::is_x86_feature_detected!("fma")
+            && std::arch::is_x86_feature_detected!("bmi1")
+            && std::arch::is_x86_feature_detected!("bmi2")
+            && std::arch::is_x86_feature_detected!("lzcnt")
+            && std::arch::is_x86_feature_detected!("popcnt")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+
+impl<F: Fn(f64) -> RowRays> MainPass<'_, F> {
+    /// The grey levels of block `chunk` into `rows`; its statistics.
+    fn block(&self, blk: &mut GroundBlock, chunk: usize, rows: &mut [u8]) -> RenderStats {
+        #[cfg(target_arch = "x86_64")]
+        if self.avx2 {
+            // SAFETY: `avx2` is true only when `has_avx2` found every feature the function is
+            // compiled for on this CPU.
+            #[allow(unsafe_code)]
+            return unsafe { self.block_avx2(blk, chunk, rows) };
+        }
+        self.block_body(blk, chunk, rows)
+    }
+
+    #[cfg(target_arch = "x86_64")]
+    #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
+    fn block_avx2(&self, blk: &mut GroundBlock, chunk: usize, rows: &mut [u8]) -> RenderStats {
+        self.block_body(blk, chunk, rows)
+    }
+
+    #[inline(always)]
+    fn block_body(&self, blk: &mut GroundBlock, chunk: usize, rows: &mut [u8]) -> RenderStats {
+        let rays_of_row = self.row_rays;
+        let mut st = RenderStats::default();
+        let v0 = chunk * self.rows_per_chunk;
+        let wu = self.wu;
+        let n_rows = rows.len() / wu;
+        let geom = BlockGeometry {
+            rays_of_row: self.row_rays,
+            scene: self.scene,
+            wu,
+        };
+        if self.interpolate {
+            geom.solve_interpolated(blk, v0, n_rows, self.image_rows, &mut st);
+        } else {
+            for r in 0..n_rows {
+                geom.solve_row(blk, r, v0 + r, 1, 1, &mut st);
+            }
+        }
+        let ng = wu.div_ceil(4);
+        // The footprint varies slowly along a row: its mip levels and blend are
+        // recomputed every 4 pixels. Those levels of detail are computed first, in
+        // a loop of independent iterations, so that their square root and
+        // divisions overlap instead of stalling the sampling loop.
+        let mut lods = std::mem::take(&mut blk.lod);
+        lods.clear();
+        for r in 0..n_rows {
+            lods_of_row(
+                &rays_of_row((v0 + r) as f64),
+                blk.row(r).0,
+                self.f_px,
+                &mut lods,
+            );
+        }
+        let mut vals = std::mem::take(&mut blk.vals);
+        vals.clear();
+        vals.resize(wu * n_rows, 0.0);
+        // Shading in column strips across the block's rows, so that a strip's
+        // texels can stay in the L1 cache from one row to the next even when rows
+        // run along texture y (one cache line per texel row). Same pixels; no gain
+        // measurable within the noise on the flights measured (docs/PERFORMANCE.md).
+        for c0 in (0..wu).step_by(SHADE_STRIP) {
+            let c1 = (c0 + SHADE_STRIP).min(wu);
+            for r in 0..n_rows {
+                let (row_t, row_x, row_y) = blk.row(r);
+                self.shade.row(
+                    &mut vals[r * wu + c0..r * wu + c1],
+                    (&row_t[c0..c1], &row_x[c0..c1], &row_y[c0..c1]),
+                    &lods[r * ng + c0 / 4..(r + 1) * ng],
+                    |col, t| {
+                        let ray = rays_of_row((v0 + r) as f64).at((c0 + col) as f64);
+                        lod_footprint(ray.ch1, ray.ch2, ray.n2, t, self.f_px).0
+                    },
+                    &mut st,
+                );
+            }
+        }
+        // Noise and rounding in a loop of their own (vectorised without noise).
+        let opts = &self.opts;
+        if opts.noise_sigma_grey > 0.0 {
+            let sigma = opts.noise_sigma_grey as f32;
+            let base = chunk * self.rows_per_chunk * wu;
+            for (k, (out, v)) in rows.iter_mut().zip(&vals).enumerate() {
+                let n = approx_normal(opts.noise_seed, (base + k) as i64);
+                *out = to_grey(v + sigma * n);
+            }
+        } else {
+            for (out, v) in rows.iter_mut().zip(&vals) {
+                *out = to_grey(*v);
+            }
+        }
+        blk.vals = vals;
+        blk.lod = lods;
+        st
+    }
+}
+
 /// Columns per strip of the shading (a multiple of 4: strips start new level-of-detail groups).
 const SHADE_STRIP: usize = 64;
+
+/// Groups of four pixels shaded together by [`Shader::run`] at most (a strip's).
+const RUN_GROUPS: usize = SHADE_STRIP / 4;
 
 /// Round half up to a grey level (`f32::round` is a libm call on baseline x86-64).
 #[inline(always)]
@@ -1101,8 +1259,116 @@ impl Shader<'_> {
     /// sky where `t` is NaN, else the trilinear albedo times the gain. Pixels are shaded in
     /// groups sharing their mip levels and blend, which start at every 4th column (level of
     /// detail `lods[col / 4]`) and at the first ground pixel after sky (`lod_at(col, t)`).
+    ///
+    /// Runs of whole ground groups at the same mip level go through [`Self::run`] (vectorised
+    /// phases); the rest, and runs with a sample outside the atlases, through
+    /// [`Self::row_general`]. Both give the same values.
     #[inline(always)]
     fn row(
+        &self,
+        out: &mut [f32],
+        (t, x, y): (&[f64], &[f64], &[f64]),
+        lods: &[f64],
+        lod_at: impl Fn(usize, f64) -> f64,
+        st: &mut RenderStats,
+    ) {
+        let n = out.len().min(t.len()).min(x.len()).min(y.len());
+        let ground4 = |g: usize| {
+            4 * g + 4 <= n && !t[4 * g..4 * g + 4].iter().any(|v| v.is_nan()) && g < lods.len()
+        };
+        // Groups [g_done, g) still to be shaded by the general path.
+        let mut g_done = 0;
+        let mut g = 0;
+        while 4 * g < n {
+            if !ground4(g) {
+                g += 1;
+                continue;
+            }
+            let l0 = lods[g] as u32;
+            let mut g_end = g + 1;
+            while g_end - g < RUN_GROUPS && ground4(g_end) && lods[g_end] as u32 == l0 {
+                g_end += 1;
+            }
+            let (c0, c1) = (4 * g, 4 * g_end);
+            if self.run(
+                l0,
+                &lods[g..g_end],
+                &x[c0..c1],
+                &y[c0..c1],
+                &mut out[c0..c1],
+            ) {
+                if g_done < g {
+                    let (a, b) = (4 * g_done, c0);
+                    self.row_general(
+                        &mut out[a..b],
+                        (&t[a..b], &x[a..b], &y[a..b]),
+                        &lods[g_done..g],
+                        |col, tc| lod_at(a + col, tc),
+                        st,
+                    );
+                }
+                st.hits += (c1 - c0) as u64;
+                g_done = g_end;
+            }
+            g = g_end;
+        }
+        if 4 * g_done < n {
+            let a = 4 * g_done;
+            self.row_general(
+                &mut out[a..n],
+                (&t[a..n], &x[a..n], &y[a..n]),
+                &lods[g_done..],
+                |col, tc| lod_at(a + col, tc),
+                st,
+            );
+        }
+    }
+
+    /// Grey levels of `x.len()` ground pixels (a multiple of 4, at most `4 · RUN_GROUPS`)
+    /// whose groups all have mip level `l0`, their levels of detail `lods` (one per group), as
+    /// [`Self::group4`] gives them, in phases of independent iterations (texel coordinates,
+    /// loads, blends) that the compiler vectorises. `false` (and `out` unspecified) when a
+    /// level is missing or a sample falls outside the atlases: the general path then shades
+    /// these pixels.
+    #[inline(always)]
+    fn run(&self, l0: u32, lods: &[f64], x: &[f64], y: &[f64], out: &mut [f32]) -> bool {
+        let m = out.len().min(x.len()).min(y.len()).min(4 * lods.len());
+        if m == 0 || m > 4 * RUN_GROUPS {
+            return false;
+        }
+        let l1 = (l0 + 1).min(MAX_LEVEL);
+        let (Some(Some(lv0)), Some(Some(lv1))) =
+            (self.levels.get(l0 as usize), self.levels.get(l1 as usize))
+        else {
+            return false;
+        };
+        // Level blend per pixel, as in `row_general`.
+        let mut frac = [0.0_f32; 4 * RUN_GROUPS];
+        for (f4, &lod) in frac[..m].chunks_exact_mut(4).zip(lods) {
+            let mut f = (lod - f64::from(l0)) as f32;
+            if f <= 1e-4 || l0 >= MAX_LEVEL {
+                f = 0.0;
+            }
+            f4.fill(f);
+        }
+        let mut a0 = [0.0_f32; 4 * RUN_GROUPS];
+        let mut a1 = [0.0_f32; 4 * RUN_GROUPS];
+        if !(lv0.sample_run(&x[..m], &y[..m], &mut a0[..m])
+            && lv1.sample_run(&x[..m], &y[..m], &mut a1[..m]))
+        {
+            return false;
+        }
+        // `(a0 + f (a1 − a0)) g`: with f = 0 exactly `a0 g`, the value of `group4` without the
+        // second level.
+        for i in 0..m {
+            out[i] = (a0[i] + frac[i] * (a1[i] - a0[i])) * self.gain;
+        }
+        true
+    }
+
+    /// [`Self::row`] group by group: sky, partial groups and samples outside the atlases.
+    #[inline(always)]
+    fn row_general(
         &self,
         out: &mut [f32],
         (t, x, y): (&[f64], &[f64], &[f64]),
@@ -1259,7 +1525,7 @@ fn lod_footprint(ch1: f64, ch2: f64, n2: f64, t: f64, f_px: f64) -> (f64, f64) {
 /// shading's mip levels and blend, which vary slowly along a row. A loop of independent,
 /// branch-free iterations over contiguous depths, so that it vectorises (two divisions and a
 /// square root per group of four pixels).
-#[inline(never)]
+#[inline(always)]
 fn lods_of_row(rays: &RowRays, t_row: &[f64], f_px: f64, out: &mut Vec<f64>) {
     let (h1, h1u) = rays.lin[2];
     let (h2, h2u, h2uu) = rays.quad[2];
@@ -1435,7 +1701,8 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     /// predicted from the one before), their columns taken in turn. Row 0 of a block is
     /// predicted from the left only, one long chain of dependent solves; the solves of the
     /// rows below it hang off that chain without lengthening it, so the CPU overlaps them.
-    /// Each solve sees the same guess as in row order: the same values.
+    /// Each solve sees the same guess as in row order: the same values. Rows below the block's
+    /// first are solved four columns at a time ([`Self::solve_quad`]).
     fn solve_rows(&self, blk: &mut GroundBlock, rs: &[usize], v0: usize, st: &mut RenderStats) {
         let wu = self.wu;
         let n = rs.len().min(JOINT_ROWS);
@@ -1445,7 +1712,25 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         let rays: [RowRays; JOINT_ROWS] =
             std::array::from_fn(|i| (self.rays_of_row)((v0 + rs[i.min(n - 1)]) as f64));
         let mut preds = [Pred::default(); JOINT_ROWS];
-        let mut col = 0;
+        // Quads of solved columns (8 image columns), then the rest one by one.
+        let quads = wu / 8;
+        for q in 0..quads {
+            for i in 0..n {
+                if rs[i] >= 2 {
+                    self.solve_quad(blk, rs[i], &rays[i], 8 * q, &mut preds[i], st);
+                } else {
+                    for col in (8 * q..8 * q + 8).step_by(2) {
+                        self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
+                    }
+                }
+            }
+        }
+        // The column after the quads' last (the image's last column is always solved).
+        let mut col = if quads == 0 {
+            0
+        } else {
+            next_col(8 * quads - 2, 2, wu)
+        };
         while col < wu {
             for i in 0..n {
                 self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
@@ -1454,6 +1739,57 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         }
         for i in 0..n {
             self.fill_odd(blk, rs[i], 2, &rays[i], st);
+        }
+    }
+
+    /// [`Self::solve_at`] (gap 2) of row `r ≥ 2` at the columns `col0, col0 + 2, col0 + 4,
+    /// col0 + 6`, the same values: when all four are predicted from above (their guesses then
+    /// do not depend on one another), their fast paths run side by side in straight-line code
+    /// (independent chains the CPU overlaps, partly in vector registers); a column whose fast
+    /// path fails is solved by [`intersect`] from its guess, as alone. Otherwise (sky above) the
+    /// columns are solved one by one.
+    #[inline(always)]
+    fn solve_quad(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        rays: &RowRays,
+        col0: usize,
+        pred: &mut Pred,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let cols = [col0, col0 + 2, col0 + 4, col0 + 6];
+        let a1 = cols.map(|c| self.above(blk, r, 2, c, 1));
+        if r < 2 || a1.iter().any(|t| t.is_nan()) {
+            for c in cols {
+                self.solve_at(blk, r, 2, rays, c, pred, st);
+            }
+            return;
+        }
+        let a2 = cols.map(|c| self.above(blk, r, 2, c, 2));
+        // `predict` with a ground pixel above.
+        let guess: [f64; 4] = std::array::from_fn(|i| {
+            if a2[i].is_nan() {
+                a1[i]
+            } else {
+                2.0 * a1[i] - a2[i]
+            }
+        });
+        let fast = fast_quad(rays, &cols, &guess, self.scene.table);
+        for i in 0..4 {
+            let sol = match fast[i] {
+                Some(sol) => {
+                    st.height_lookups += 1;
+                    Some(sol)
+                }
+                None => intersect(&rays.at(cols[i] as f64), self.scene, Some(guess[i]), st),
+            };
+            match sol {
+                Some((t, _, _)) => pred.push(t),
+                None => *pred = Pred::default(),
+            }
+            blk.set(r * wu + cols[i], sol.unwrap_or((f64::NAN, 0.0, 0.0)));
         }
     }
 
@@ -1644,6 +1980,40 @@ fn eval(ray: &Ray, table: &HeightTable<'_>, t: f64, lookups: &mut u64) -> (f64, 
     let dx = ray.cx1 + 2.0 * ray.cx2 * t;
     let dy = ray.cy1 + 2.0 * ray.cy2 * t;
     (hr - h, dh - hx * dx - hy * dy, x, y)
+}
+
+/// The fast path of [`intersect`] (on a frame whose rays are all monotone) for the rays of
+/// `rays` at four columns from their guesses, side by side: `Some((t, x, y))` where it
+/// succeeds, with the values `intersect` gives; `None` where `intersect` would go on to its
+/// general case.
+#[inline(always)]
+fn fast_quad(
+    rays: &RowRays,
+    cols: &[usize; 4],
+    guess: &[f64; 4],
+    table: &HeightTable<'_>,
+) -> [Option<(f64, f64, f64)>; 4] {
+    let ray: [Ray; 4] = std::array::from_fn(|i| rays.at(cols[i] as f64));
+    let in_range = |t: f64, n2: f64| t > 0.0 && t * t * n2 < MAX_RANGE_M * MAX_RANGE_M;
+    let mut out = [None; 4];
+    let mut unused = 0;
+    for i in 0..4 {
+        let (ray, t0) = (&ray[i], guess[i]);
+        let (f0, d0, x0, y0) = eval(ray, table, t0, &mut unused);
+        let dt = -f0 / d0;
+        let t1 = t0 + dt;
+        if in_range(t0, ray.n2)
+            && d0 < 0.0
+            && f0.is_finite()
+            && f0.abs() < NEWTON_ACCEPT_M
+            && in_range(t1, ray.n2)
+        {
+            let x = x0 + (ray.cx1 + 2.0 * ray.cx2 * t0) * dt;
+            let y = y0 + (ray.cy1 + 2.0 * ray.cy2 * t0) * dt;
+            out[i] = Some((t1, x, y));
+        }
+    }
+    out
 }
 
 /// Whether `f` is strictly decreasing on `[0, t_bot]` for this ray: `f' ≤ h' + L·|(x', y')|`
