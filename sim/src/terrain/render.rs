@@ -1149,12 +1149,15 @@ impl<F: Fn(f64) -> RowRays> MainPass<'_, F> {
         self.block_body(blk, chunk, rows)
     }
 
+    /// [`Self::block_body`] compiled with the AVX2 features (the x86-64-v3 set less those the
+    /// renderer cannot use); to be called only where the CPU has them.
     #[cfg(target_arch = "x86_64")]
     #[target_feature(enable = "avx2,fma,bmi1,bmi2,lzcnt,popcnt")]
     fn block_avx2(&self, blk: &mut GroundBlock, chunk: usize, rows: &mut [u8]) -> RenderStats {
         self.block_body(blk, chunk, rows)
     }
 
+    /// The pass itself, inlined into each build.
     #[inline(always)]
     fn block_body(&self, blk: &mut GroundBlock, chunk: usize, rows: &mut [u8]) -> RenderStats {
         let rays_of_row = self.row_rays;
