@@ -14,9 +14,15 @@ EKF2_EV_CTRL = 0), `closed` (forwarded and fused by EKF2 as external vision).
 
 Writes flight.csv, motion.csv (SIH's and the daemon's heading, attitude and velocity: tells
 a heading error from a wind error), summary.toml (with the daemon's wind at its last fix
-before the loss, from its debug log line), error.png (and logs/) into --out. Needs pymavlink, numpy,
-matplotlib. The wind needs SIH_WIND_N / SIH_WIND_E, which SIH v1.16.0 does not have: see
-docs/results/px4/README.md for the local SIH change this harness expects.
+before the loss, from its debug log line), error.png, the daemon's ianav.toml and ins.toml
+(the exact settings it flew with) and logs/ into --out. Needs Python >= 3.11 (tomllib),
+pymavlink, numpy, matplotlib.
+
+Wind: SIH's SIH_WIND_N / SIH_WIND_E parameters (PX4-Autopilot main since PR 26467, in the
+sense PR 27376 and its follow-up left them: the components of the direction the wind blows
+FROM). A PX4 without them (v1.16 and older) flies only with --wind-mps 0: the harness refuses
+to fly, or to label, a wind the autopilot did not take, and checks the wind SIH actually
+applies against the request from its truth and airspeed during the cruise.
 """
 
 from __future__ import annotations
@@ -48,6 +54,13 @@ REPO = Path(__file__).resolve().parents[2]
 SIH_GYRO_VAR_RAD2PS2 = 2.3e-3
 SIH_ACCEL_VAR_M2PS4 = 0.42
 SIH_Q_VELOCITY_M2PS2 = 7e-5
+# SIH's gyros do not drift: the paper's gyro-error random walk, not config/ianav.toml's MEMS one.
+SIH_Q_E_GYR_RAD2PS2 = 3e-14
+# The wind SIH applies (from its truth and airspeed) may differ from the request by turbulence-
+# free estimation error only: airspeed noise 0.2 m/s, angle of attack and sideslip of a few
+# degrees (≤ 0.1 × airspeed along the body axis, averaging out over turns). A sign or unit
+# mistake is 2 × the wind speed off.
+WIND_CHECK_TOLERANCE_MPS = 1.5
 
 # PX4 custom_mode: main mode in bits 16..23, sub mode in 24..31.
 PX4_MAIN_MODES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
@@ -151,6 +164,7 @@ class Record:
     odom_motion: list = field(default_factory=list)
     # (t_us, qw, qx, qy, qz): PX4's own attitude (ATTITUDE_QUATERNION on the onboard link)
     ap_motion: list = field(default_factory=list)
+    airspeed: list = field(default_factory=list)  # (t_us, calibrated airspeed m/s) VFR_HUD
     origin: tuple | None = None  # daemon's SET_GPS_GLOBAL_ORIGIN (lat, lon, alt_m)
     gps_fix: list = field(default_factory=list)  # (t_us, fix_type) from the GCS link
     modes: list = field(default_factory=list)  # (t_us, name, armed)
@@ -190,12 +204,10 @@ class Harness:
         self.daemon = None
         self.ekf_notes: dict = {}
         self.sysid = 1
-        # The daemon answers TIMESYNC on its own wall clock but, with mavlink.clock =
-        # "autopilot", stamps ODOMETRY in PX4's clock: PX4's timesync then maps those stamps
-        # by a wrong, drifting offset (it logs "time jump detected") and EKF2 stops fusing
-        # them. Dropping TIMESYNC both ways leaves PX4 unsynchronised, so it stamps each
-        # ODOMETRY at its arrival, as it would a companion without TIMESYNC.
-        self.drop_timesync = args.mode == "closed" and not args.keep_timesync
+        # Since 5019b10 the daemon answers TIMESYNC in the clock it stamps ODOMETRY in, so
+        # TIMESYNC is forwarded; --drop-timesync leaves PX4 unsynchronised (it then stamps
+        # each ODOMETRY at its arrival, as it would a companion without TIMESYNC).
+        self.drop_timesync = args.mode == "closed" and args.drop_timesync
 
     # ---------------------------------------------------------------- sockets and IO thread
     def open_sockets(self):
@@ -326,6 +338,10 @@ class Harness:
         if name == "GLOBAL_POSITION_INT":
             with self.lock:
                 self.rec.ap.append((m.time_boot_ms * 1000, m.lat * 1e-7, m.lon * 1e-7, m.alt * 1e-3))
+        elif name == "VFR_HUD":
+            if math.isfinite(m.airspeed) and self.latest_t_us:
+                with self.lock:
+                    self.rec.airspeed.append((self.latest_t_us, m.airspeed))
         elif name == "GPS_RAW_INT":
             with self.lock:
                 self.rec.gps_fix.append((m.time_usec, m.fix_type))
@@ -409,6 +425,14 @@ class Harness:
             log(f"px4 {' '.join(words)} -> rc {r.returncode} {out[-200:]}")
         return out
 
+    def px4_ver(self) -> str:
+        """PX4's own account of its build: `ver all` (git hash, tag, OS)."""
+        out = self.px4_cmd("ver", "all")
+        keep = [ln.strip() for ln in out.splitlines()
+                if ln.strip().startswith(("FW git-hash", "FW version", "FW git-branch", "PX4GIT"))
+                or "git" in ln.lower() and ":" in ln]
+        return "; ".join(dict.fromkeys(keep))
+
     def ekf_snapshot(self, label):
         """EKF2's aiding flags and its EV position fusion state (px4-listener), for the summary."""
         keep = ("cs_gnss_pos", "cs_ev_pos", "cs_ev_vel", "cs_fuse_aspd", "cs_fuse_beta",
@@ -427,7 +451,10 @@ class Harness:
         self.ekf_notes[label] = lines
 
     def daemon_config(self, path: Path):
-        """The daemon's configuration: the given file, with the SITL link keys overridden."""
+        """The daemon's configuration: the given file, with the SITL link keys overridden.
+
+        Written as `path` with its INS file copied beside it (`ins.toml`, referenced relatively),
+        so the flight directory holds exactly the settings the daemon flew with."""
         import tomllib
 
         base = Path(self.args.config).resolve()
@@ -440,10 +467,12 @@ class Harness:
             cfg.setdefault("logging", {})["level"] = self.args.daemon_log_level
         nav = cfg.setdefault("navigation", {})
         if nav.get("ins_config"):
-            nav["ins_config"] = str((base.parent / nav["ins_config"]).resolve())
+            ins_src = (base.parent / nav["ins_config"]).resolve()
+            shutil.copyfile(ins_src, path.parent / "ins.toml")
+            nav["ins_config"] = "ins.toml"
         # HIGHRES_IMU's field has EKF2's wandering mag-bias estimate subtracted (docs/PX4.md).
         cfg.setdefault("input", {})["magnetometer"] = self.args.magnetometer
-        if self.args.q_e_gyr is not None:
+        if self.args.q_e_gyr:
             # SIH's gyros do not drift: the paper's gyro model fits them better than the
             # drifting-MEMS random walk of config/ianav.toml.
             cfg.setdefault("ins", {}).setdefault("attitude", {})["q_e_gyr_rad2ps2"] = \
@@ -464,7 +493,7 @@ class Harness:
         path.write_text(to_toml(cfg))
 
     def start_daemon(self, logs: Path):
-        cfg = logs / "ianav.toml"
+        cfg = Path(self.args.out) / "ianav.toml"
         self.daemon_config(cfg)
         self.daemon_log = open(logs / "ianav.log", "w")
         record = ["--record", str(logs / "daemon.bin")] if self.args.record else []
@@ -482,6 +511,74 @@ class Harness:
                 except subprocess.TimeoutExpired:
                     p.kill()
                     p.wait()
+
+    def px4_param(self, name: str) -> float | None:
+        """A parameter's value from PX4's shell, None when this build has no such parameter."""
+        out = self.px4_cmd("param", "show", name)
+        m = re.search(rf"{name}\s*\[[^\]]*\]\s*:\s*([-+0-9.eE]+)", out)
+        return float(m.group(1)) if m else None
+
+    def set_wind(self):
+        """SIH's steady wind, in the sense of PX4's SIH_WIND_N/E: the components of the direction
+        the wind blows from. Refuses a wind this build cannot apply."""
+        a = self.args
+        n_from = a.wind_mps * math.cos(math.radians(a.wind_from_deg))
+        e_from = a.wind_mps * math.sin(math.radians(a.wind_from_deg))
+        have = self.px4_param("SIH_WIND_N") is not None and self.px4_param("SIH_WIND_E") is not None
+        if not have:
+            if a.wind_mps != 0.0:
+                raise RuntimeError("this PX4 has no SIH_WIND_N/E (SIH wind needs PX4-Autopilot "
+                                   "main with PR 26467 or a release containing it): fly with "
+                                   "--wind-mps 0")
+            self.sih_wind_params = None
+            return
+        self.px4_cmd("param", "set", "SIH_WIND_N", f"{n_from:.3f}")
+        self.px4_cmd("param", "set", "SIH_WIND_E", f"{e_from:.3f}")
+        got = (self.px4_param("SIH_WIND_N"), self.px4_param("SIH_WIND_E"))
+        if any(g is None or abs(g - w) > 1e-3 for g, w in zip(got, (n_from, e_from))):
+            raise RuntimeError(f"PX4 did not take the wind: SIH_WIND_N/E = {got}, "
+                               f"requested {n_from:.3f}, {e_from:.3f}")
+        self.sih_wind_params = got
+
+    def measured_wind(self, t0_us):
+        """The wind SIH applies, from its truth: ground velocity minus the air velocity along
+        the body x axis (VFR_HUD's calibrated airspeed scaled to true airspeed with the ISA
+        density at the truth altitude), averaged from t0_us on. Returns the air's velocity
+        (north, east, m/s) and the number of samples."""
+        import numpy as np
+
+        with self.lock:
+            tm = np.array([r for r in self.rec.truth_motion if r[0] >= t0_us], dtype=float)
+            tr = np.array([r for r in self.rec.truth if r[0] >= t0_us], dtype=float)
+            asp = np.array(self.rec.airspeed, dtype=float)
+        if len(tm) < 20 or len(asp) < 20 or len(tr) < 20:
+            return None, 0
+        cas = np.interp(tm[:, 0], asp[:, 0], asp[:, 1])
+        alt = np.interp(tm[:, 0], tr[:, 0], tr[:, 3])
+        tas = cas / np.sqrt((1.0 - 2.25577e-5 * alt) ** 4.2559)
+        w, x, y, z = tm[:, 1:5].T
+        bx_n = 1 - 2 * (y * y + z * z)  # body x axis in NED
+        bx_e = 2 * (x * y + w * z)
+        wn = np.mean(tm[:, 5] - tas * bx_n)
+        we = np.mean(tm[:, 6] - tas * bx_e)
+        return (float(wn), float(we)), len(tm)
+
+    def check_wind(self, t_wind_us):
+        """The wind SIH applied over the cruise (after 20 s of settling) against the request."""
+        a = self.args
+        got, n = self.measured_wind(t_wind_us + 20e6)
+        self.wind_measured = got
+        if got is None:
+            raise RuntimeError("no truth or airspeed to measure the wind SIH applies")
+        want = (-a.wind_mps * math.cos(math.radians(a.wind_from_deg)),
+                -a.wind_mps * math.sin(math.radians(a.wind_from_deg)))
+        off = math.hypot(got[0] - want[0], got[1] - want[1])
+        log(f"wind measured from SIH truth: {got[0]:.2f} N {got[1]:.2f} E m/s "
+            f"(requested {want[0]:.2f}, {want[1]:.2f}; {n} samples)")
+        if off > WIND_CHECK_TOLERANCE_MPS:
+            raise RuntimeError(f"SIH applies a wind of ({got[0]:.2f}, {got[1]:.2f}) m/s N/E, "
+                               f"{off:.1f} m/s away from the requested ({want[0]:.2f}, "
+                               f"{want[1]:.2f}): not labelling this flight with it")
 
     # ---------------------------------------------------------------- MAVLink control
     def wait_t(self, cond, timeout_wall_s, what):
@@ -602,6 +699,9 @@ class Harness:
         io = threading.Thread(target=self.io_loop, daemon=True)
         io.start()
         self.probe_marks = []
+        self.wind_measured = None
+        self.sih_wind_params = None
+        self.px4_version = ""
         t_arm = t_wind = t_cmd_loss = None
         try:
             self.start_px4(work, logs)
@@ -609,7 +709,9 @@ class Harness:
             hb.start()
             self.wait_t(lambda: self.latest_truth is not None and self.mode[0] != "", 120,
                         "PX4 heartbeat and SIH truth")
+            self.px4_version = self.px4_ver()
             for msg_id, rate in ((mavlink.MAVLINK_MSG_ID_GPS_RAW_INT, 10.0),
+                                 (mavlink.MAVLINK_MSG_ID_VFR_HUD, 10.0),
                                  (mavlink.MAVLINK_MSG_ID_HOME_POSITION, 1.0),
                                  (mavlink.MAVLINK_MSG_ID_MISSION_CURRENT, 2.0)):
                 self.set_interval(self.send_gcs, msg_id, rate)
@@ -639,13 +741,11 @@ class Harness:
             log("armed")
             self.wait_t(lambda: self.latest_truth[3] - self.home_alt_m > 0.7 * a.alt_m,
                         600, "climb")
-            wn = -a.wind_mps * math.cos(math.radians(a.wind_from_deg))
-            we = -a.wind_mps * math.sin(math.radians(a.wind_from_deg))
-            self.px4_cmd("param", "set", "SIH_WIND_N", f"{wn:.3f}")
-            self.px4_cmd("param", "set", "SIH_WIND_E", f"{we:.3f}")
+            self.set_wind()
             t_wind = self.latest_t_us
             log(f"wind {a.wind_mps} m/s from {a.wind_from_deg} deg; cruising {a.cruise_s} s")
             self.sim_sleep(a.cruise_s)
+            self.check_wind(t_wind)
             self.ekf_snapshot("before_loss")
             self.px4_cmd("param", "set", "SIM_GPS_USED", "0")
             t_cmd_loss = self.latest_t_us
@@ -750,7 +850,8 @@ class Harness:
             return round(float(err[k]), 1)
 
         s = {
-            "autopilot": "PX4 v1.16.0 SITL, SIH airplane (sihsim_airplane)",
+            "autopilot": "PX4 SITL, SIH airplane (sihsim_airplane)",
+            "px4_version": getattr(self, "px4_version", ""),
             "mode": a.mode,
             "daemon_commit": git_describe() if a.mode != "alone" else "",
             "completed": bool(getattr(self, "completed", False)),
@@ -758,6 +859,10 @@ class Harness:
             "short": bool(a.short),
             "wind_mps": a.wind_mps,
             "wind_from_deg": a.wind_from_deg,
+            "sih_wind_params_n_e_from": list(self.sih_wind_params) if getattr(
+                self, "sih_wind_params", None) else [],
+            "wind_measured_n_e_mps": [round(v, 2) for v in self.wind_measured] if getattr(
+                self, "wind_measured", None) else [],
             "seed": 1234,
             "seed_note": "SIH seeds its sensor noise with srand(1234) at start; not settable",
             "speed_factor": a.speed_factor,
@@ -766,6 +871,7 @@ class Harness:
             "cruise_before_loss_s": a.cruise_s,
             "denied_s": a.denied_s,
             "timesync_dropped_by_router": self.drop_timesync,
+            "harness_args": flight_args(a),
             "dropped_from_daemon_by_router": a.drop_to_px4,
             "daemon_ins_for_sih_imu": bool(a.sih_imu),
             "daemon_q_e_gyr": a.q_e_gyr,
@@ -1056,6 +1162,31 @@ def to_toml(d: dict, prefix: str = "") -> str:
     return text
 
 
+def flight_args(a) -> str:
+    """The options that define the flight, as px4.py arguments: everything but the machine's
+    paths (PX4 build, daemon binary, output); the config relative to the repository."""
+    skip = {"px4_build", "daemon", "out"}
+    words = []
+    for k, v in sorted(vars(a).items()):
+        if k in skip or v is None or v is False or v == "":
+            continue
+        if k == "config":
+            try:
+                v = Path(v).resolve().relative_to(REPO)
+            except ValueError:
+                v = Path(v).name
+        flag = "--" + k.replace("_", "-")
+        if v is True:
+            words.append(flag)
+        elif k == "sih_imu":
+            continue
+        else:
+            words.append(f"{flag} {v}")
+    if not a.sih_imu:
+        words.append("--no-sih-imu")
+    return " ".join(words)
+
+
 def count_in(path: Path, text: str) -> int:
     try:
         return path.read_text(errors="replace").count(text)
@@ -1082,10 +1213,12 @@ def main(argv=None):
     ap.add_argument("--config", default=str(REPO / "config" / "ianav.toml"),
                     help="daemon configuration; link, clock and output keys are overridden")
     ap.add_argument("--mode", choices=("alone", "open", "closed"), required=True)
-    ap.add_argument("--q-e-gyr", type=float, default=None,
-                    help="daemon [ins.attitude] q_e_gyr_rad2ps2 (default: the config's)")
-    ap.add_argument("--sih-imu", action="store_true",
-                    help="configure the daemon's INS for SIH's IMU noise (measured, see daemon_config)")
+    ap.add_argument("--q-e-gyr", type=float, default=SIH_Q_E_GYR_RAD2PS2,
+                    help="daemon [ins.attitude] q_e_gyr_rad2ps2 (default 3e-14: SIH's gyros do "
+                         "not drift; 0 keeps the config's)")
+    ap.add_argument("--sih-imu", action=argparse.BooleanOptionalAction, default=True,
+                    help="configure the daemon's INS for SIH's IMU noise (measured, see "
+                         "daemon_config; on by default)")
     ap.add_argument("--out", required=True, help="flight directory to write")
     ap.add_argument("--wind-mps", type=float, default=6.0)
     ap.add_argument("--wind-from-deg", type=float, default=270.0)
@@ -1098,8 +1231,9 @@ def main(argv=None):
     ap.add_argument("--denied-s", type=float, default=630.0, help="flight after the loss")
     ap.add_argument("--ev-ctrl", type=int, default=1,
                     help="EKF2_EV_CTRL in closed mode: 1 horizontal position, 5 + velocity")
-    ap.add_argument("--keep-timesync", action="store_true",
-                    help="closed: forward TIMESYNC between PX4 and the daemon (see drop_timesync)")
+    ap.add_argument("--drop-timesync", action="store_true",
+                    help="closed: drop TIMESYNC between PX4 and the daemon (the behaviour before "
+                         "5019b10, when the daemon answered in its own clock)")
     ap.add_argument("--ev-delay-ms", type=float, default=0.0, help="EKF2_EV_DELAY (closed)")
     ap.add_argument("--drop-to-px4", default="",
                     help="comma-separated message names (or 'all') never passed from the daemon "
