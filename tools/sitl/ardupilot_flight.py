@@ -12,7 +12,9 @@ Modes (same flight definition):
   open    daemon runs, GPS2_TYPE 0 and the router drops its GPS_INPUT (open loop)
   closed  daemon's GPS_INPUT reaches ArduPlane as GPS2 (GPS2_TYPE 14)
 
-Output directory: flight.csv, summary.toml, error.png, daemon.log, sitl.log.
+Output directory: flight.csv, summary.toml, error.png, daemon.log, sitl.log and, unless
+`alone`, the daemon's configuration as it flew: ianav.toml and the INS file it names, ins.toml
+(a copy of --ins-config, named relative to ianav.toml), so the directory holds its settings.
 Times are simulation (vehicle boot) time unless named `wall`.
 """
 
@@ -400,9 +402,14 @@ def fly(args):
         if args.mode != "alone":
             router = Router(base + 2, args.daemon_port or free_udp_port(),
                             drop_gps_input=(args.mode == "open"))
-            dcfg = os.path.join(work, "ianav.toml")
-            write_daemon_config(dcfg, router.daemon_addr[1], os.path.abspath(args.ins_config),
-                                args)
+            # The daemon flies on files in the output directory, kept with the results: the
+            # INS file copied beside ianav.toml, which names it relatively (the daemon resolves
+            # navigation.ins_config against its config file's directory).
+            ins_copy = os.path.join(out, "ins.toml")
+            if not (os.path.exists(ins_copy) and os.path.samefile(args.ins_config, ins_copy)):
+                shutil.copyfile(args.ins_config, ins_copy)
+            dcfg = os.path.join(out, "ianav.toml")
+            write_daemon_config(dcfg, router.daemon_addr[1], "ins.toml", args)
             dlog = open(os.path.join(out, "daemon.log"), "w")
             record = (["--record", os.path.join(out, "daemon.bin")] if args.record else [])
             daemon = subprocess.Popen([args.ianav, "run", "--config", dcfg] + record, stdout=dlog,
@@ -587,6 +594,11 @@ def analyse(args, out, defn, gcs, router, completed, t_loss, t_cruise):
     s["daemon_gnss_lag_s"] = args.gnss_lag_s
     s["daemon_q_e_gyr_rad2ps2"] = args.q_e_gyr
     s["daemon_commit"] = args.daemon_commit
+    s["harness_commit"] = args.harness_commit
+    if args.mode != "alone":
+        # The daemon's settings, beside this file (tools/sitl/README.md).
+        s["daemon_config"] = "ianav.toml"
+        s["ins_config"] = "ins.toml"
     s["circuit_rotation_deg"] = defn["circuit_rotation_deg"]
     s["cruise_before_loss_s"] = args.cruise_s
     s["denied_s"] = round(post[-1]["t_s"], 1) if post else 0.0
@@ -748,7 +760,8 @@ def main():
     ap.add_argument("--short", action="store_true", help="60 s cruise, 120 s denied")
     ap.add_argument("--cruise-s", type=float, help="cruise before the loss (default 180)")
     ap.add_argument("--denied-s", type=float, help="time after the loss (default 600)")
-    ap.add_argument("--speedup", type=float, default=5.0)
+    ap.add_argument("--speedup", type=float, default=10.0,
+                    help="SITL speed-up (lock-step; the published flights used 10)")
     ap.add_argument("--record", action="store_true",
                     help="the daemon records what it feeds its navigator (daemon.bin, "
                          "daemon.solutions.csv; `ianav replay`, docs/REPLAY.md)")
@@ -758,9 +771,10 @@ def main():
                     help="daemon input.imu_rate_hz (ArduPlane accepts 40 Hz at most)")
     ap.add_argument("--q-e-gyr", type=float, default=1.27e-10,
                     help="daemon [ins.attitude] q_e_gyr_rad2ps2 over --ins-config (0: not written)")
-    ap.add_argument("--gnss-lag-s", type=float,
-                    help="daemon input.gnss_lag_s (not written if absent)")
-    ap.add_argument("--csv-step-s", type=float, default=0.0,
+    ap.add_argument("--gnss-lag-s", type=float, default=0.07,
+                    help="daemon input.gnss_lag_s (negative: not written, for daemons older "
+                         "than the key)")
+    ap.add_argument("--csv-step-s", type=float, default=1.0,
                     help="decimate flight.csv (0: every truth sample, 10 Hz)")
     ap.add_argument("--keep-work", action="store_true")
     args = ap.parse_args()
@@ -777,7 +791,17 @@ def main():
             capture_output=True, text=True, timeout=10).stdout.strip() or "unknown"
     except (OSError, subprocess.SubprocessError):
         args.ap_version = "unknown"
+    if args.gnss_lag_s is not None and args.gnss_lag_s < 0:
+        args.gnss_lag_s = None
     args.daemon_commit = os.environ.get("IANAV_COMMIT", "")
+    # The tree the harness (and its default INS file) came from; "-dirty" when modified.
+    try:
+        args.harness_commit = subprocess.run(
+            ["git", "-C", os.path.dirname(os.path.abspath(__file__)), "describe", "--always",
+             "--dirty", "--abbrev=7"],
+            capture_output=True, text=True, timeout=10).stdout.strip()
+    except (OSError, subprocess.SubprocessError):
+        args.harness_commit = ""
     s, _ = fly(args)
     sys.exit(0 if s["completed"] else 1)
 
