@@ -62,6 +62,18 @@ SIH_Q_E_GYR_RAD2PS2 = 3e-14
 # mistake is 2 × the wind speed off.
 WIND_CHECK_TOLERANCE_MPS = 1.5
 
+# The SIH airplane's forward thruster as PX4 PR 28362 ("restore and tune the airplane forward
+# thruster of sihsim_airplane", merged 2026-08-24) sets it: since the advance-ratio propeller
+# model (PR 26720, April 2026) the airframe's SIH_T_MAX no longer reaches the fixed-wing thrust
+# and the airplane cannot take off (< 6 m/s at full throttle) on PX4 main between the two.
+# APC 8x6" UIUC coefficients (those of 10043_sihsim_standard_vtol) at 13,000 RPM, and a climb
+# rate limit that a 30° climb at trim airspeed needs. Set only where the parameters exist.
+SIH_AIRPLANE_THRUSTER = {
+    "SIH_F_CT0": 0.131, "SIH_F_CT1": 0.004, "SIH_F_CT2": -0.146, "SIH_F_CP0": 0.0777,
+    "SIH_F_CP1": 0.0498, "SIH_F_CP2": -0.11, "SIH_F_DIA_INCH": 8, "SIH_F_RPM_MAX": 13000,
+    "FW_T_CLMB_MAX": 8.0,
+}
+
 # PX4 custom_mode: main mode in bits 16..23, sub mode in 24..31.
 PX4_MAIN_MODES = {1: "MANUAL", 2: "ALTCTL", 3: "POSCTL", 4: "AUTO", 5: "ACRO", 6: "OFFBOARD",
                   7: "STABILIZED", 8: "RATTITUDE"}
@@ -380,10 +392,23 @@ class Harness:
             "COM_RC_IN_MODE": 4, "SDLOG_MODE": 1 if a.ulog else -1, "MIS_TKO_LAND_REQ": 0,
             "EKF2_EV_CTRL": 0,
         }
+        p.update(self.thruster_params())
         if a.mode == "closed":
             p.update({"EKF2_EV_CTRL": a.ev_ctrl, "EKF2_EV_NOISE_MD": 0, "EKF2_EVP_NOISE": 0.5,
                       "EKF2_EVV_NOISE": 0.3, "EKF2_EV_QMIN": 1, "EKF2_EV_DELAY": a.ev_delay_ms})
         return p
+
+    def thruster_params(self) -> dict:
+        """SIH_AIRPLANE_THRUSTER where this build has the forward-thruster model but its
+        airplane airframe does not configure it (PX4 main from PR 26720 to PR 28362)."""
+        build = Path(self.args.px4_build).resolve()
+        airframe = build / "etc" / "init.d-posix" / "airframes" / "10041_sihsim_airplane"
+        try:
+            has_model = b"SIH_F_CT0" in (build / "bin" / "px4").read_bytes()
+            configured = "SIH_F_CT0" in airframe.read_text()
+        except OSError:
+            return {}
+        return dict(SIH_AIRPLANE_THRUSTER) if has_model and not configured else {}
 
     def start_px4(self, work: Path, logs: Path):
         build = Path(self.args.px4_build).resolve()
