@@ -99,9 +99,19 @@ def main(dirs):
             frac_sum += c["samples"] * c["fraction_err_le_2p45_hacc"]
     if fr:
         print(f"- ianav within 2.45 x hacc: {min(fr):.3f}–{max(fr):.3f} per flight, "
-              f"{frac_sum / n_all:.3f} pooled ({len(fr)} flights)")
+              f"{frac_sum / n_all:.3f} pooled ({len(fr)} flights); under 0.90: "
+              f"{sum(f < 0.90 for f in fr)}")
         print(f"- hacc RMS / error RMS: {min(rat):.2f}–{max(rat):.2f} per flight, "
               f"median {sorted(rat)[len(rat) // 2]:.2f}; over 5: {sum(r > 5 for r in rat)}")
+    # PX4's own spread between flights of the same setup: what a comparison must beat.
+    for (w, mode), ss in sorted(flights.items()):
+        for m in CHECKPOINTS:
+            vals = [v for v in (err(s, "ap", m) for s in ss) if v is not None]
+            if len(vals) > 1 and mode == "alone" and m == 10:
+                mu = sum(vals) / len(vals)
+                sd = (sum((v - mu) ** 2 for v in vals) / (len(vals) - 1)) ** 0.5
+                print(f"- PX4 alone, wind {w:g}°, 10 min: {' / '.join(map(fmt, vals))} m "
+                      f"(mean {mu:.0f}, sample σ {sd:.0f})")
 
 
 if __name__ == "__main__":
