@@ -34,8 +34,38 @@ def load(dirs):
             if not s.get("completed"):
                 print(f"skipped (not completed): {f.parent}", file=sys.stderr)
                 continue
+            s["_heading"] = heading_consistency(f.parent / "motion.csv")
             flights.setdefault((s["wind_from_deg"], s["mode"]), []).append(s)
     return flights
+
+
+def heading_consistency(path):
+    """Share of the daemon's heading errors within 2.45 × its published yaw σ, over the last
+    60 s before the loss and the whole time after it (motion.csv), with the error RMS."""
+    import csv
+    import math
+
+    try:
+        rows = list(csv.DictReader(path.open()))
+    except OSError:
+        return None
+    out = {}
+    for name, lo, hi in (("before", -60.0, 0.0), ("after", 0.0, math.inf)):
+        e, sig = [], []
+        for r in rows:
+            try:
+                t, y, sg = float(r["t_s"]), float(r["ianav_yaw_err_deg"]), float(
+                    r["ianav_yaw_sigma_deg"])
+            except (KeyError, ValueError):
+                continue
+            if lo <= t < hi:
+                e.append(y)
+                sig.append(sg)
+        if e:
+            out[name] = (sum(abs(a) <= 2.45 * b for a, b in zip(e, sig)) / len(e),
+                         math.sqrt(sum(a * a for a in e) / len(e)),
+                         math.sqrt(sum(b * b for b in sig) / len(sig)))
+    return out
 
 
 def err(s, who, m):
@@ -103,6 +133,12 @@ def main(dirs):
               f"{sum(f < 0.90 for f in fr)}")
         print(f"- hacc RMS / error RMS: {min(rat):.2f}–{max(rat):.2f} per flight, "
               f"median {sorted(rat)[len(rat) // 2]:.2f}; over 5: {sum(r > 5 for r in rat)}")
+    hd = [(w, mode, s["_heading"]) for (w, mode), ss in sorted(flights.items()) for s in ss
+          if s.get("_heading")]
+    for w, mode, h in hd:
+        parts = [f"{k} {v[0]:.2f} within 2.45 σ (error RMS {v[1]:.2f}°, σ RMS {v[2]:.2f}°)"
+                 for k, v in h.items()]
+        print(f"- heading, wind {w:g}° {mode}: " + "; ".join(parts))
     # PX4's own spread between flights of the same setup: what a comparison must beat.
     for (w, mode), ss in sorted(flights.items()):
         for m in CHECKPOINTS:
