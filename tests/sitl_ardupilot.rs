@@ -2,8 +2,9 @@
 //! --short --mode open` flies take-off, 60 s of cruise with GNSS, then 120 s without, and the
 //! test checks its summary.
 //!
-//! Needs the ArduPlane SITL binary in `IANAV_ARDUPLANE_SITL` (built from ArduPilot source,
-//! docs/ARDUPILOT.md "SITL flights") and python3 with pymavlink and matplotlib
+//! Needs the ArduPlane SITL binary in `IANAV_ARDUPLANE_SITL` (the ArduPilot that
+//! tools/sitl/README.md names; docs/ARDUPILOT.md "Flights beside ArduPlane SITL") and python3
+//! with pymavlink and matplotlib
 //! (`IANAV_SITL_PYTHON` names another interpreter). Without the binary the test says it was
 //! skipped and passes: CI has no ArduPilot build.
 
