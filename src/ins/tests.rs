@@ -1623,6 +1623,14 @@ fn heading_and_roll(tr: &Truth, sol: &InsSolution) -> [f64; 4] {
     ]
 }
 
+/// `[t, heading err, σ, roll err, σ]` appended once a second of truth time.
+fn push_each_second(out: &mut Vec<[f64; 5]>, tr: &Truth, sol: &InsSolution) {
+    if tr.t_us.is_multiple_of(1_000_000) {
+        let [a, b, c, d] = heading_and_roll(tr, sol);
+        out.push([tr.t_us as f64 * 1e-6, a, b, c, d]);
+    }
+}
+
 /// A start in flight beside an autopilot like PX4 SIH: cold sensor errors, SIH's IMU noise,
 /// the autopilot's attitude with a correlated error (`ref_gm_deg`, 60 s), the magnetometer at
 /// 25 Hz, at a constant `bank_deg`; the INS starts with a roll error of `roll0_deg` (the
@@ -1653,12 +1661,7 @@ fn beside_an_autopilot(
         &mut ins,
         gnss_s + denied_s,
         refs,
-        |_, tr, sol| {
-            if tr.t_us.is_multiple_of(1_000_000) {
-                let [a, b, c, d] = heading_and_roll(tr, sol);
-                out.push([tr.t_us as f64 * 1e-6, a, b, c, d]);
-            }
-        },
+        |_, tr, sol| push_each_second(&mut out, tr, sol),
     );
     out
 }
@@ -1729,10 +1732,7 @@ fn heading_error_in_a_turn(seed: u64, cfg: &InsConfig) -> Vec<[f64; 5]> {
     let mut ins = Ins::new(cfg, &init).unwrap();
     let mut out = Vec::new();
     run(&mut synth, &mut ins, 300.0, |_, tr, sol| {
-        if tr.t_us.is_multiple_of(1_000_000) {
-            let [a, b, c, d] = heading_and_roll(tr, sol);
-            out.push([tr.t_us as f64 * 1e-6, a, b, c, d]);
-        }
+        push_each_second(&mut out, tr, sol)
     });
     out
 }
