@@ -220,6 +220,7 @@ class Harness:
             p.robust_parsing = True
         self.daemon_addr = None
         self.probe = args.mode == "alone"
+        self._thruster = None
         self.px4 = None
         self.daemon = None
         self.ekf_notes: dict = {}
@@ -408,7 +409,13 @@ class Harness:
 
     def thruster_params(self) -> dict:
         """SIH_AIRPLANE_THRUSTER where this build has the forward-thruster model but its
-        airplane airframe does not configure it (PX4 main from PR 26720 to PR 28362)."""
+        airplane airframe does not configure it (PX4 main from PR 26720 to PR 28362). Read
+        once: it scans the PX4 binary."""
+        if self._thruster is None:
+            self._thruster = self._find_thruster_params()
+        return self._thruster
+
+    def _find_thruster_params(self) -> dict:
         build = Path(self.args.px4_build).resolve()
         airframe = build / "etc" / "init.d-posix" / "airframes" / "10041_sihsim_airplane"
         try:
@@ -1216,8 +1223,6 @@ def flight_args(a) -> str:
         flag = "--" + k.replace("_", "-")
         if v is True:
             words.append(flag)
-        elif k in ("sih_imu", "sih_reference"):
-            continue
         else:
             words.append(f"{flag} {v}")
     for k in ("sih_imu", "sih_reference"):
