@@ -64,6 +64,11 @@ enum Command {
         /// Write every N-th solution (the first included); 1 = every IMU step.
         #[arg(long, default_value_t = 1, value_name = "N")]
         every: u64,
+        /// Replace one recorded setting (repeatable): a dotted key of the recorded
+        /// navigation settings and a TOML value, e.g. `ins.attitude.q_w_nb_rad2ps2=1e-3`.
+        /// An unknown key is an error.
+        #[arg(long = "set", value_name = "KEY=VALUE")]
+        overrides: Vec<String>,
     },
     /// Print the version and exit.
     Version,
@@ -91,7 +96,12 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             println!("OK");
             Ok(())
         }
-        Some(Command::Replay { log, out, every }) => replay(&log, &out, every),
+        Some(Command::Replay {
+            log,
+            out,
+            every,
+            overrides,
+        }) => replay(&log, &out, every, &overrides),
         Some(Command::Run { config, record }) => {
             let mut p = preflight(&config).map_err(|e| in_file(&config, e))?;
             p.config.record = record;
@@ -114,7 +124,7 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
 }
 
 /// `ianav replay`: the log through the navigator, the solutions to `out/solutions.csv`.
-fn replay(log: &Path, out: &Path, every: u64) -> anyhow::Result<()> {
+fn replay(log: &Path, out: &Path, every: u64, overrides: &[String]) -> anyhow::Result<()> {
     use std::io::{BufReader, BufWriter, Write};
     let file = std::fs::File::open(log).with_context(|| log.display().to_string())?;
     let reader = ianav::io::sensor_log::SensorLogReader::new(BufReader::new(file))
@@ -123,7 +133,7 @@ fn replay(log: &Path, out: &Path, every: u64) -> anyhow::Result<()> {
     let path = out.join("solutions.csv");
     let mut csv =
         BufWriter::new(std::fs::File::create(&path).with_context(|| path.display().to_string())?);
-    let s = ianav::nav::replay::replay_to_csv(reader, every, &mut csv)
+    let s = ianav::nav::replay::replay_to_csv_with(reader, overrides, every, &mut csv)
         .with_context(|| log.display().to_string())?;
     csv.flush().with_context(|| path.display().to_string())?;
     println!(

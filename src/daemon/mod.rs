@@ -605,6 +605,18 @@ pub async fn run(
     };
     let nav_cfg = nav_config(&cfg, year);
     let nav = crate::nav::Navigator::new(&nav_cfg)?;
+    let att = &nav_cfg.ins.attitude;
+    let lag_s = att.body_rate_lag_s(nav_cfg.ins.reference_period_s);
+    if lag_s > crate::ins::MAX_BODY_RATE_LAG_S {
+        tracing::warn!(
+            lag_ms = lag_s * 1e3,
+            "the INS body rate lags the gyro by {:.0} ms in turns ([ins.attitude] \
+             q_w_nb_rad2ps2 small for r_gyro_rad2ps2): set q_w_nb_rad2ps2 ≥ {:.2e} \
+             (docs/INS.md \"Body-rate lag\")",
+            lag_s * 1e3,
+            crate::ins::AttitudeFilterConfig::matching_q_w_nb_rad2ps2(att.r_gyro_rad2ps2)
+        );
+    }
     let recorder = match &cfg.record {
         Some(path) => Some(
             nav_thread::Recorder::create(path, &nav_cfg)

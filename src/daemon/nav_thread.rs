@@ -351,9 +351,13 @@ pub fn spawn(
                                 accel_ratio = m.accel_ratio,
                                 period_s = m.period_s,
                                 "IMU noisier than configured: the INS over-trusts its \
-                                 propagation; set [ins.attitude] r_gyro_rad2ps2 ≥ {:.2e} and \
-                                 [ins.position] q_velocity_m2ps2 ≥ {:.2e} (docs/INS.md)",
+                                 propagation; set [ins.attitude] r_gyro_rad2ps2 ≥ {:.2e} \
+                                 with q_w_nb_rad2ps2 ≥ {:.2e}, and [ins.position] \
+                                 q_velocity_m2ps2 ≥ {:.2e} (docs/INS.md)",
                                 m.matching_r_gyro_rad2ps2(cfg),
+                                crate::ins::AttitudeFilterConfig::matching_q_w_nb_rad2ps2(
+                                    m.matching_r_gyro_rad2ps2(cfg)
+                                ),
                                 m.matching_q_velocity_m2ps2(cfg)
                             );
                         }

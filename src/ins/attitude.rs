@@ -370,6 +370,7 @@ impl AttitudeFilter {
 #[cfg(test)]
 mod tests {
     use super::*;
+    use crate::ins::config::MAX_BODY_RATE_LAG_S;
 
     fn filter() -> AttitudeFilter {
         let init = AttitudeInit {
@@ -430,6 +431,57 @@ mod tests {
                 hm.column(j)
             );
         }
+    }
+
+    /// The body-rate state against a gyro whose rate ramps (a roll into a turn), the other
+    /// sensors switched off by a huge R: in steady state it trails the ramp by
+    /// `body_rate_lag_s`. SIH's gyro R with the paper's Q̃ (0.48 s) and the matching Q̃ (4 ms).
+    #[test]
+    fn body_rate_state_trails_a_ramp_by_the_predicted_lag() {
+        let r_sih = 2.3e-3;
+        for q_w in [1e-6, AttitudeFilterConfig::matching_q_w_nb_rad2ps2(r_sih)] {
+            let cfg = AttitudeFilterConfig {
+                q_w_nb_rad2ps2: q_w,
+                r_gyro_rad2ps2: r_sih,
+                gyro_noise_var_rad2ps2: r_sih,
+                r_accel_white_m2ps4: 1e12,
+                r_accel_turbulence_m2ps4: [0.0; 3],
+                r_mag_nt2: 1e12,
+                q_e_gyr_rad2ps2: 0.0,
+                ..AttitudeFilterConfig::default()
+            };
+            let mut ctx = context();
+            ctx.b_model_n = None;
+            let init = AttitudeInit {
+                q_nb: so3::from_euler_zyx(0.7, 0.05, 0.3),
+                w_nb_b: Vector3::zeros(),
+                e_gyr: Vector3::zeros(),
+                e_gyr_sigma: Vector3::repeat(1e-9),
+                e_mag: Vector3::zeros(),
+                e_mag_sigma: Vector3::repeat(1.0),
+                delta_b_n: Vector3::zeros(),
+                delta_b_n_sigma: Vector3::repeat(1.0),
+            };
+            let mut f = AttitudeFilter::new(&cfg, &init, no_reference_error());
+            let (dt, alpha) = (0.01, 0.5);
+            let predicted = cfg.body_rate_lag_s(dt);
+            // Long enough for the gain to settle: 20 time constants.
+            let steps = ((20.0 * predicted / dt).ceil() as usize).max(200);
+            let mut w_true = 0.0;
+            for _ in 0..steps {
+                f.predict(&cfg, dt, 1.0);
+                w_true += alpha * dt;
+                let gyro = Vector3::new(w_true, 0.0, 0.0) + f.q_nb.inverse() * ctx.w_in_n;
+                f.update(&cfg, &ctx, &gyro, &Vector3::new(0.0, 0.0, -9.8), None, 1.0)
+                    .unwrap();
+            }
+            let lag = (w_true - (f.w_nb_b.x - f.e_gyr.x)) / alpha;
+            assert!(
+                (lag - predicted).abs() < 0.05 * predicted + 1e-3,
+                "q_w {q_w}: lag {lag} s, predicted {predicted} s"
+            );
+        }
+        assert!(AttitudeFilterConfig::default().body_rate_lag_s(0.01) < MAX_BODY_RATE_LAG_S);
     }
 
     #[test]

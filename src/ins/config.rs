@@ -96,7 +96,11 @@ pub struct AttitudeFilterConfig {
     /// Q̃ of each attitude error axis per reference period, rad². The authors' 5e-15 per
     /// quaternion component is 4 × 5e-15 per rotation-vector axis (δq_v ≈ δθ/2).
     pub q_attitude_rad2: f64,
-    /// Q̃ of the body rate `w_nb_b` per axis, (rad/s)².
+    /// Q̃ of the body rate `w_nb_b` per axis, (rad/s)². With the gyro as a measurement of
+    /// that state, the ratio Q̃/R sets how far the state lags the gyro in a changing turn rate
+    /// ([`AttitudeFilterConfig::body_rate_lag_s`]): the paper's 1e-6 against its 5.63e-7 lags
+    /// 4 ms, against PX4 SIH's 2.3e-3 it lags 0.48 s and the attitude ~0.1 s (docs/INS.md,
+    /// "Body-rate lag"). Raise it with `r_gyro_rad2ps2`.
     pub q_w_nb_rad2ps2: f64,
     /// Q̃ of the gyro error `E_gyr` per axis, (rad/s)².
     pub q_e_gyr_rad2ps2: f64,
@@ -131,6 +135,33 @@ pub struct AttitudeFilterConfig {
     /// Per-sample gyro white-noise variance at the reference period (P₀ of `w_nb_b`),
     /// (rad/s)².
     pub gyro_noise_var_rad2ps2: f64,
+}
+
+/// Q̃_w / R_gyro of the paper's settings (1e-6 / 5.63e-7): the body-rate state then lags the
+/// gyro by 0.4 of a reference period.
+pub const PAPER_BODY_RATE_Q_OVER_R: f64 = 1e-6 / 5.63e-7;
+/// Body-rate lag above which the daemon warns at start (two reference periods), s.
+pub const MAX_BODY_RATE_LAG_S: f64 = 0.02;
+
+impl AttitudeFilterConfig {
+    /// Steady-state lag of the body-rate state behind a gyro rate that changes steadily (a
+    /// roll into a turn), s. The state is a random walk measured by the gyro each reference
+    /// period `T`: a scalar Kalman filter whose steady gain `K` solves `K² + λK − λ = 0`,
+    /// `λ = Q̃/R`; as exponential smoothing with gain `K` it trails a ramp by `T (1 − K)/K`.
+    /// (The accelerometer and magnetometer pull the attitude back part of the way.)
+    pub fn body_rate_lag_s(&self, reference_period_s: f64) -> f64 {
+        let lambda = self.q_w_nb_rad2ps2 / self.r_gyro_rad2ps2;
+        if lambda.is_nan() || lambda <= 0.0 {
+            return f64::INFINITY;
+        }
+        let k = 0.5 * (-lambda + (lambda * lambda + 4.0 * lambda).sqrt());
+        reference_period_s * (1.0 - k) / k
+    }
+
+    /// The body-rate Q̃ that keeps the paper's lag with a gyro R of `r_gyro_rad2ps2`.
+    pub fn matching_q_w_nb_rad2ps2(r_gyro_rad2ps2: f64) -> f64 {
+        r_gyro_rad2ps2 * PAPER_BODY_RATE_Q_OVER_R
+    }
 }
 
 impl Default for AttitudeFilterConfig {

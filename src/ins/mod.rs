@@ -33,7 +33,7 @@ use nalgebra::{Matrix2, Matrix3, Vector3};
 
 pub use config::{
     AirDataFilterConfig, AlignmentConfig, AttitudeFilterConfig, InputLimits, InsConfig,
-    InsConfigError, PositionFilterConfig,
+    InsConfigError, MAX_BODY_RATE_LAG_S, PositionFilterConfig,
 };
 
 use crate::env::magnetic::{MagneticGrid, MagneticModel};

@@ -29,6 +29,9 @@ pub enum ReplayError {
     /// The recorded settings do not parse.
     #[error("navigation settings in the log: {0}")]
     Config(String),
+    /// An override is not `dotted.key=value` with a TOML value, or names no setting.
+    #[error("setting override `{0}`: {1}")]
+    Override(String, String),
     /// The settings are invalid.
     #[error(transparent)]
     Nav(#[from] super::NavError),
@@ -66,6 +69,65 @@ pub fn config_of<R: Read>(reader: &SensorLogReader<R>) -> Result<NavConfig, Repl
     toml::from_str(text).map_err(|e| ReplayError::Config(e.to_string()))
 }
 
+/// The settings recorded in `reader`'s log with `overrides` applied: each `dotted.key=value`
+/// (a TOML value: `1e-3`, `true`, `"scaled_imu"`, `[1.0, 2.0]`) replaces that setting, so a
+/// recorded flight can be re-run with other filter settings. A key the settings do not have
+/// is refused, not ignored.
+pub fn config_with_overrides<R: Read>(
+    reader: &SensorLogReader<R>,
+    overrides: &[String],
+) -> Result<NavConfig, ReplayError> {
+    let text = reader.nav_config().ok_or(ReplayError::NoConfig)?;
+    let mut table: toml::Table =
+        toml::from_str(text).map_err(|e| ReplayError::Config(e.to_string()))?;
+    for o in overrides {
+        apply_override(&mut table, o)?;
+    }
+    let cfg: NavConfig = toml::Value::Table(table.clone())
+        .try_into()
+        .map_err(|e: toml::de::Error| ReplayError::Config(e.to_string()))?;
+    // Unknown keys are dropped by deserialisation: compare the round trip to catch them.
+    let back: toml::Table =
+        toml::from_str(&config_to_toml(&cfg)).map_err(|e| ReplayError::Config(e.to_string()))?;
+    for o in overrides {
+        let key = o.split_once('=').map_or(o.as_str(), |(k, _)| k.trim());
+        if lookup(&back, key).is_none() {
+            return Err(ReplayError::Override(o.clone(), "no such setting".into()));
+        }
+    }
+    Ok(cfg)
+}
+
+fn lookup<'a>(table: &'a toml::Table, dotted: &str) -> Option<&'a toml::Value> {
+    let mut parts = dotted.split('.');
+    let mut v = table.get(parts.next()?)?;
+    for p in parts {
+        v = v.as_table()?.get(p)?;
+    }
+    Some(v)
+}
+
+fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), ReplayError> {
+    let bad = |why: &str| ReplayError::Override(o.to_owned(), why.to_owned());
+    let (key, value) = o.split_once('=').ok_or_else(|| bad("expected key=value"))?;
+    // Parsed as the value of a one-key document, so any TOML value is accepted.
+    let doc: toml::Table = toml::from_str(&format!("v = {}", value.trim()))
+        .map_err(|_| bad("the value is not a TOML value"))?;
+    let value = doc.get("v").cloned().ok_or_else(|| bad("empty value"))?;
+    let parts: Vec<&str> = key.trim().split('.').collect();
+    let (last, path) = parts.split_last().ok_or_else(|| bad("empty key"))?;
+    let mut t = table;
+    for p in path {
+        t = t
+            .entry((*p).to_owned())
+            .or_insert_with(|| toml::Value::Table(toml::Table::new()))
+            .as_table_mut()
+            .ok_or_else(|| bad("a key on the path is not a table"))?;
+    }
+    t.insert((*last).to_owned(), value);
+    Ok(())
+}
+
 /// Run every event of `reader` through a navigator built with `cfg`, handing each solution
 /// to `on_solution`.
 pub fn replay<R: Read>(
@@ -96,7 +158,17 @@ pub fn replay_to_csv<R: Read>(
     every: u64,
     out: &mut impl Write,
 ) -> Result<ReplaySummary, ReplayError> {
-    let cfg = config_of(&reader)?;
+    replay_to_csv_with(reader, &[], every, out)
+}
+
+/// [`replay_to_csv`] with setting overrides ([`config_with_overrides`]).
+pub fn replay_to_csv_with<R: Read>(
+    reader: SensorLogReader<R>,
+    overrides: &[String],
+    every: u64,
+    out: &mut impl Write,
+) -> Result<ReplaySummary, ReplayError> {
+    let cfg = config_with_overrides(&reader, overrides)?;
     writeln!(out, "{CSV_HEADER}")?;
     let every = every.max(1);
     let (mut k, mut written, mut line) = (0_u64, 0_u64, String::with_capacity(320));
@@ -156,6 +228,38 @@ mod tests {
         let cfg = NavConfig::new(InsConfig::default(), 2025.75);
         let back: NavConfig = toml::from_str(&config_to_toml(&cfg)).unwrap();
         assert_eq!(back, cfg);
+    }
+
+    fn log_with(cfg: &NavConfig) -> Vec<u8> {
+        let mut w = crate::io::sensor_log::SensorLogWriter::new(Vec::new()).unwrap();
+        w.write_nav_config(&config_to_toml(cfg)).unwrap();
+        w.finish().unwrap()
+    }
+
+    #[test]
+    fn overrides_replace_recorded_settings_and_unknown_keys_are_refused() {
+        let cfg = NavConfig::new(InsConfig::default(), 2025.75);
+        let log = log_with(&cfg);
+        let r = SensorLogReader::new(&log[..]).unwrap();
+        let set = |s: &str| vec![s.to_owned()];
+        let got = config_with_overrides(&r, &set("ins.attitude.q_w_nb_rad2ps2 = 2.5e-3")).unwrap();
+        assert_eq!(got.ins.attitude.q_w_nb_rad2ps2, 2.5e-3);
+        let mut expected = cfg.clone();
+        expected.ins.attitude.q_w_nb_rad2ps2 = 2.5e-3;
+        assert_eq!(got, expected, "nothing else changes");
+        assert_eq!(config_with_overrides(&r, &[]).unwrap(), cfg);
+        for bad in [
+            "ins.attitude.no_such_key=1",
+            "ins.attitude.q_w_nb_rad2ps2",
+            "ins.attitude.q_w_nb_rad2ps2=not a value",
+            "ins.attitude.q_w_nb_rad2ps2.x=1",
+        ] {
+            let err = config_with_overrides(&r, &set(bad));
+            assert!(
+                matches!(err, Err(ReplayError::Override(..) | ReplayError::Config(_))),
+                "{bad}: {err:?}"
+            );
+        }
     }
 
     #[test]

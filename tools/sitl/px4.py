@@ -54,6 +54,12 @@ REPO = Path(__file__).resolve().parents[2]
 SIH_GYRO_VAR_RAD2PS2 = 2.3e-3
 SIH_ACCEL_VAR_M2PS4 = 0.42
 SIH_Q_VELOCITY_M2PS2 = 7e-5
+# The body-rate Q̃ that keeps the paper's Q̃/R ratio (1e-6 / 5.63e-7) with SIH's gyro R: with
+# the paper's 1e-6 the body-rate state lags SIH's gyro by 0.48 s (docs/INS.md "Body-rate lag").
+SIH_Q_W_NB_RAD2PS2 = SIH_GYRO_VAR_RAD2PS2 * 1e-6 / 5.63e-7
+# SIH's magnetometer (PX4 sensor_mag_sim): white noise σ 0.02 / 0.02 / 0.03 gauss per axis;
+# the INS's one R per axis takes the largest, (3000 nT)².
+SIH_MAG_VAR_NT2 = 9e6
 # SIH's gyros do not drift: the paper's gyro-error random walk, not config/ianav.toml's MEMS one.
 SIH_Q_E_GYR_RAD2PS2 = 3e-14
 # The accuracy of PX4's attitude beside SIH, as the transfer alignment's reference ([alignment]
@@ -528,7 +534,9 @@ class Harness:
             att = ins.setdefault("attitude", {})
             att.update({"r_gyro_rad2ps2": SIH_GYRO_VAR_RAD2PS2,
                         "gyro_noise_var_rad2ps2": SIH_GYRO_VAR_RAD2PS2,
-                        "r_accel_white_m2ps4": SIH_ACCEL_VAR_M2PS4})
+                        "q_w_nb_rad2ps2": SIH_Q_W_NB_RAD2PS2,
+                        "r_accel_white_m2ps4": SIH_ACCEL_VAR_M2PS4,
+                        "r_mag_nt2": SIH_MAG_VAR_NT2})
             ins.setdefault("position", {})["q_velocity_m2ps2"] = SIH_Q_VELOCITY_M2PS2
         if self.args.sih_reference:
             cfg.setdefault("ins", {}).setdefault("alignment", {}).update({
@@ -1261,8 +1269,9 @@ def main(argv=None):
                     help="daemon [ins.attitude] q_e_gyr_rad2ps2 (default 3e-14: SIH's gyros do "
                          "not drift; 0 keeps the config's)")
     ap.add_argument("--sih-imu", action=argparse.BooleanOptionalAction, default=True,
-                    help="configure the daemon's INS for SIH's IMU noise (measured, see "
-                         "daemon_config; on by default)")
+                    help="configure the daemon's INS for SIH's sensor noise: IMU (measured), "
+                         "the body-rate Q̃ matched to the gyro R, magnetometer (PX4's "
+                         "sensor_mag_sim); see daemon_config; on by default")
     ap.add_argument("--sih-reference", action=argparse.BooleanOptionalAction, default=True,
                     help="give the transfer alignment the accuracy of PX4's attitude beside "
                          "SIH (SIH_REF_*; on by default)")
