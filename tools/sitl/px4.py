@@ -62,6 +62,10 @@ SIH_Q_W_NB_RAD2PS2 = SIH_GYRO_VAR_RAD2PS2 * 1e-6 / 5.63e-7
 SIH_MAG_VAR_NT2 = 9e6
 # SIH's gyros do not drift: the paper's gyro-error random walk, not config/ianav.toml's MEMS one.
 SIH_Q_E_GYR_RAD2PS2 = 3e-14
+# Seconds after TECS's altitude reference meets the aircraft on the ground before arming.
+TECS_MARGIN_S = 15.0
+# A flight whose aircraft sinks below this fraction of --alt-m after the climb is not labelled.
+MIN_HEIGHT_FRACTION = 0.5
 # The accuracy of PX4's attitude beside SIH, as the transfer alignment's reference ([alignment]
 # in the INS file): EKF2 of PX4 main with SIH lockstep is 0.05–0.15° off in roll, pitch and yaw
 # (means per 50 s, motion.csv's px4_*_err_deg of the stock flights in docs/results/px4), so its
@@ -564,6 +568,17 @@ class Harness:
                     p.kill()
                     p.wait()
 
+    def min_height_after_climb(self, t_loss_us) -> float | None:
+        """The lowest truth height over home after the climb first reached 90 % of --alt-m,
+        up to the loss (None before that): a take-off that sinks back is visible."""
+        a = self.args
+        if not self.rec.truth or self.home_alt_m is None:
+            return None
+        h = [r[3] - self.home_alt_m for r in self.rec.truth
+             if t_loss_us is None or r[0] <= t_loss_us]
+        up = next((i for i, v in enumerate(h) if v >= 0.9 * a.alt_m), None)
+        return None if up is None else round(min(h[up:]), 1)
+
     def px4_param(self, name: str) -> float | None:
         """A parameter's value from PX4's shell, None when this build has no such parameter."""
         out = self.px4_cmd("param", "show", name)
@@ -779,8 +794,14 @@ class Harness:
             self.sim_sleep(5)
             # The same time on the ground in every mode: EKF2's heading and biases settle
             # while it stands still, and alone mode's link probe used to give it 34 s more.
-            self.wait_t(lambda: self.latest_t_us >= a.arm_at_s * 1e6, a.arm_at_s / 0.2 + 60,
-                        f"PX4 time {a.arm_at_s} s")
+            # Not before TECS is ready: its altitude reference starts at 0 m MSL at boot and
+            # rises at FW_T_CLMB_R_SP until it meets the aircraft (PX4 main 7f8482c655, its
+            # tecs_status). Armed earlier, the take-off hands TECS a reference far below the
+            # aircraft, which then sinks at FW_T_SINK_MAX into the ground and climbs again.
+            clmb = self.px4_param("FW_T_CLMB_R_SP") or 3.0
+            self.arm_at_s = max(a.arm_at_s, self.home_alt_m / clmb + TECS_MARGIN_S)
+            self.wait_t(lambda: self.latest_t_us >= self.arm_at_s * 1e6,
+                        self.arm_at_s / 0.2 + 60, f"PX4 time {self.arm_at_s:.0f} s")
             for attempt in range(30):
                 self.command(mavlink.MAV_CMD_DO_SET_MODE, 1, 4, 4)  # AUTO.MISSION
                 r = self.command(mavlink.MAV_CMD_COMPONENT_ARM_DISARM, 1)
@@ -918,7 +939,8 @@ class Harness:
             "seed": 1234,
             "seed_note": "SIH seeds its sensor noise with srand(1234) at start; not settable",
             "speed_factor": a.speed_factor,
-            "arm_at_px4_time_s": a.arm_at_s,
+            "arm_at_px4_time_s": round(getattr(self, "arm_at_s", a.arm_at_s), 1),
+            "min_height_after_climb_m": self.min_height_after_climb(t_loss),
             "armed_px4_time_s": round(self.t_arm / 1e6, 3) if self.t_arm is not None else -1.0,
             "cruise_before_loss_s": a.cruise_s,
             "denied_s": a.denied_s,
@@ -932,6 +954,13 @@ class Harness:
                                             "time jump detected"),
             "px4_params": {k: v for k, v in self.px4_params().items()},
         }
+        low = s["min_height_after_climb_m"]
+        if low is not None and low < MIN_HEIGHT_FRACTION * a.alt_m:
+            s["completed"] = False
+            s["abort_reason"] = (f"sank to {low} m over home after the climb (TECS; "
+                                 "see the arm time in fly())")
+        if s["min_height_after_climb_m"] is None:
+            del s["min_height_after_climb_m"]  # TOML has no null
         if t_loss is not None:
             s["gnss_loss_px4_time_s"] = round(t_loss / 1e6, 3)
             s["denied_recorded_s"] = round(float(t_s[post][-1]) if post.any() else 0.0, 1)
