@@ -25,6 +25,7 @@
 //! seen before a turn can be re-observed after it.
 
 mod init;
+mod reprojection;
 #[cfg(test)]
 mod tests;
 
@@ -36,11 +37,8 @@ use super::camera::Camera;
 use super::depth_filter::{Seed, SeedUpdate, inverse_depth_variance};
 use super::features::{DetectorConfig, FeatureDetector, FeatureError};
 use super::homography::HomographyConfig;
-use super::map::{
-    CANDIDATE_MAX_FAILURES, GOOD_AFTER_SUCCESSES, Keyframe, KeyframeFeature, KeyframeId, Map,
-    Observation, PointId, PointKind, UNKNOWN_MAX_FAILURES,
-};
-use super::matcher::{find_epipolar_match, find_match_direct};
+use super::map::{Keyframe, KeyframeFeature, KeyframeId, Map, Observation, PointId, PointKind};
+use super::matcher::find_epipolar_match;
 use super::pose_opt::{PoseObservation, PoseOptConfig, optimize_pose};
 use super::pyramid::{Pyramid, PyramidError};
 use super::sparse_align::{AlignFeature, SparseAlignConfig, sparse_align};
@@ -49,6 +47,7 @@ use crate::math::se3;
 use crate::math::stats::median;
 use crate::sensors::Frame;
 use init::InitTracks;
+use reprojection::{FrameMatch, PointVerdict};
 
 /// Settings of the VNS.
 #[derive(Debug, Clone, PartialEq)]
@@ -242,14 +241,6 @@ struct LastFrame {
     keyframe: bool,
 }
 
-/// One matched feature of the current frame.
-#[derive(Debug, Clone, Copy)]
-struct FrameMatch {
-    point: PointId,
-    px: Vector2<f64>,
-    level: u32,
-}
-
 /// A frame tracked from one start pose, not yet committed to the map.
 #[derive(Debug, Clone)]
 struct Attempt {
@@ -267,13 +258,6 @@ enum SecondChance {
     Guess,
     /// A start turned away from the guess.
     TurnedStart,
-}
-
-/// What matching said about one map point in the current frame, kept until the frame tracks.
-#[derive(Debug, Clone, Copy)]
-enum PointVerdict {
-    Matched { point: PointId },
-    Failed { point: PointId, units: u32 },
 }
 
 /// The turn δ between the second-chance starts, degrees: 14.6 px at level 0, about half the
@@ -745,168 +729,6 @@ impl Vns {
             self.insert_keyframe(t_us, pyramid, &attempt.zeta_ec, &attempt.inliers);
         }
         keyframe
-    }
-
-    /// Reprojection of the closest overlapping keyframes' points and of the candidates into
-    /// the grid, then one direct match per cell in the fixed random order.
-    fn reproject_and_match(
-        &self,
-        pyramid: &Pyramid,
-        zeta_ec: &Isometry3<f64>,
-    ) -> (Vec<FrameMatch>, Vec<PointVerdict>) {
-        let mut verdicts = Vec::new();
-        let grid = *self.detector.grid();
-        let mut cells: Vec<Vec<(PointKind, PointId, Vector2<f64>)>> =
-            vec![Vec::new(); grid.n_cells()];
-        let keyframes =
-            self.map
-                .overlapping_keyframes(&self.camera, zeta_ec, self.cfg.reprojection_keyframes);
-        let mut seen = std::collections::BTreeSet::new();
-        let border = self.cfg.reprojection_border_px;
-        for kf_id in keyframes {
-            let Some(kf) = self.map.keyframe(kf_id) else {
-                continue;
-            };
-            for f in &kf.features {
-                let Some(pid) = f.point else { continue };
-                if !seen.insert(pid) {
-                    continue;
-                }
-                let Some(p) = self.map.point(pid) else {
-                    continue;
-                };
-                if p.kind == PointKind::Candidate {
-                    continue;
-                }
-                if let Some(px) = self.camera.project_ecef(zeta_ec, &p.p_e)
-                    && self.camera.contains(&px, border)
-                    && let Some(cell) = grid.cell_of(&px)
-                {
-                    cells[cell].push((p.kind, pid, px));
-                }
-            }
-        }
-        // Candidates: all of them; out of the image costs 3 failure units.
-        let candidates: Vec<PointId> = self
-            .map
-            .points()
-            .filter(|(_, p)| p.kind == PointKind::Candidate)
-            .map(|(id, _)| id)
-            .collect();
-        for pid in candidates {
-            let Some(p) = self.map.point(pid) else {
-                continue;
-            };
-            match self.camera.project_ecef(zeta_ec, &p.p_e) {
-                Some(px) if self.camera.contains(&px, border) => {
-                    if let Some(cell) = grid.cell_of(&px) {
-                        cells[cell].push((PointKind::Candidate, pid, px));
-                    }
-                }
-                _ => verdicts.push(PointVerdict::Failed {
-                    point: pid,
-                    units: 3,
-                }),
-            }
-        }
-        let mut matches = Vec::with_capacity(self.cfg.max_matches);
-        for &cell in &self.cell_order {
-            if matches.len() >= self.cfg.max_matches {
-                break;
-            }
-            let list = &mut cells[cell];
-            list.sort_by(|a, b| a.0.cmp(&b.0).then(a.1.cmp(&b.1)));
-            for (_, pid, px) in std::mem::take(list) {
-                match self.match_point(pid, &px, pyramid, zeta_ec) {
-                    Some(m) => {
-                        verdicts.push(PointVerdict::Matched { point: pid });
-                        matches.push(m);
-                        break;
-                    }
-                    None => verdicts.push(PointVerdict::Failed {
-                        point: pid,
-                        units: 1,
-                    }),
-                }
-            }
-        }
-        (matches, verdicts)
-    }
-
-    /// Apply a tracked frame's match verdicts, in the order they were reached: a match counts
-    /// towards promotion to a good point, a failure towards deletion.
-    fn apply_verdicts(&mut self, verdicts: Vec<PointVerdict>) {
-        for verdict in verdicts {
-            match verdict {
-                PointVerdict::Matched { point } => {
-                    if let Some(p) = self.map.point_mut(point) {
-                        p.successes += 1;
-                        if p.kind == PointKind::Unknown && p.successes > GOOD_AFTER_SUCCESSES {
-                            p.kind = PointKind::Good;
-                        }
-                    }
-                }
-                PointVerdict::Failed { point, units } => self.fail_point(point, units),
-            }
-        }
-    }
-
-    /// Count failure units against a point; delete it past its kind's limit.
-    fn fail_point(&mut self, pid: PointId, units: u32) {
-        let Some(p) = self.map.point_mut(pid) else {
-            return;
-        };
-        p.failures += units;
-        let delete = match p.kind {
-            PointKind::Unknown => p.failures > UNKNOWN_MAX_FAILURES,
-            PointKind::Candidate => p.failures > CANDIDATE_MAX_FAILURES,
-            PointKind::Good => false,
-        };
-        if delete {
-            self.map.remove_point(pid);
-        }
-    }
-
-    /// Direct match of one point from the keyframe observation closest in viewing angle.
-    fn match_point(
-        &self,
-        pid: PointId,
-        predicted_px: &Vector2<f64>,
-        pyramid: &Pyramid,
-        zeta_ec: &Isometry3<f64>,
-    ) -> Option<FrameMatch> {
-        let p = self.map.point(pid)?;
-        let view = (zeta_ec.translation.vector - p.p_e).normalize();
-        let (cos, kf, feature) = p
-            .observations
-            .iter()
-            .filter_map(|o| {
-                let kf = self.map.keyframe(o.keyframe)?;
-                let f = kf.features.get(o.feature)?;
-                let dir = (kf.centre_e() - p.p_e).normalize();
-                Some((dir.dot(&view), kf, f))
-            })
-            .max_by(|a, b| a.0.total_cmp(&b.0))?;
-        if cos < self.cfg.min_view_cos {
-            return None;
-        }
-        let range_m = (kf.centre_e() - p.p_e).norm();
-        let t_cur_ref = zeta_ec.inverse() * kf.zeta_ec;
-        let m = find_match_direct(
-            &self.camera,
-            &kf.pyramid,
-            &feature.px,
-            feature.level,
-            range_m,
-            &t_cur_ref,
-            pyramid,
-            predicted_px,
-        )?;
-        Some(FrameMatch {
-            point: pid,
-            px: m.px,
-            level: m.level,
-        })
     }
 
     /// Refine the least recently refined matched points over their keyframe observations.
