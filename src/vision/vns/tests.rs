@@ -9,7 +9,7 @@ use nalgebra::Translation3;
 
 /// A VNS on a 384 × 512 camera (the paper's focal length) with 32-px cells: 192 cells as
 /// on the full camera.
-fn small_vns() -> (Camera, Vns) {
+pub(super) fn small_vns() -> (Camera, Vns) {
     let cam = camera(384, 512);
     let cfg = VnsConfig {
         detector: DetectorConfig {
@@ -22,32 +22,21 @@ fn small_vns() -> (Camera, Vns) {
 }
 
 /// The textured plane most tests fly over.
-const GROUND_5: Ground = Ground {
+pub(super) const GROUND_5: Ground = Ground {
     seed: 5,
     ground_z_m: 0.0,
 };
 
 /// `x̊₀` at a scene pose 1,000 m over the plane: the exact pose and height.
-fn start_at(zeta_ew: &Isometry3<f64>, pose_w: &Isometry3<f64>) -> VnsStart {
+pub(super) fn start_at(zeta_ew: &Isometry3<f64>, pose_w: &Isometry3<f64>) -> VnsStart {
     VnsStart {
         zeta_ec: zeta_ew * pose_w,
         h_agl_m: 1_000.0,
     }
 }
 
-/// Every output from frame `k0` on is tracking.
-fn assert_tracking_from(states: &[(u64, VnsState)], k0: u64) {
-    assert!(
-        states
-            .iter()
-            .filter(|(k, _)| *k >= k0)
-            .all(|(_, s)| *s == VnsState::Tracking),
-        "{states:?}"
-    );
-}
-
 /// The local level frame of the scene (z down, on the ground plane) in ECEF.
-fn zeta_ew() -> Isometry3<f64> {
+pub(super) fn zeta_ew() -> Isometry3<f64> {
     let origin = Geodetic {
         lat_rad: 0.606,
         lon_rad: -1.556,
@@ -61,7 +50,7 @@ fn zeta_ew() -> Isometry3<f64> {
 
 /// Straight and level at 30 m/s, 1,000 m over the plane, with a slow gentle wobble in
 /// roll and pitch (±0.6°).
-fn pose_at(k: u64) -> Isometry3<f64> {
+pub(super) fn pose_at(k: u64) -> Isometry3<f64> {
     let t = k as f64 * 0.1;
     let wobble = 0.01 * (0.3 * t).sin();
     nadir_pose(
@@ -189,137 +178,5 @@ fn a_lost_track_is_counted_and_relocalised_and_bad_frames_rejected() {
         assert!(vns.process(f, None).is_err());
     }
     assert_eq!(vns.counters().bad_frames, 3);
-    assert_eq!(vns.state(), VnsState::Tracking);
-}
-
-/// Sparse alignment that settles at a wrong pose (here: the reference image swapped for one
-/// taken 40 m away, so the alignment moves by about 2.3° of view, tens of px) fails the
-/// frame's matching; the motion model's guess tracks it instead. Not a loss: the frame
-/// keeps tracking and the recovery is counted.
-#[test]
-fn a_frame_whose_alignment_settles_wrong_is_tracked_from_the_motion_model() {
-    let (cam, mut vns) = small_vns();
-    let ground = GROUND_5;
-    let zeta_ew = zeta_ew();
-    let mut states = Vec::new();
-    for k in 0..33_u64 {
-        let t_us = 1_000_000 + k * 100_000;
-        let pose_w = pose_at(k);
-        if k == 30 {
-            let last = vns.last.as_mut().expect("tracking before frame 30");
-            let moved = nadir_pose(30.0 * 2.9 + 40.0, 1.5 * 2.9, 1_000.0, [0.0, 0.0, 0.0058]);
-            let elsewhere = ground.frame(&cam, &moved, last.t_us);
-            last.pyramid = Arc::new(Pyramid::from_frame(&elsewhere, &cam).unwrap());
-        }
-        let frame = ground.frame(&cam, &pose_w, t_us);
-        let start = start_at(&zeta_ew, &pose_w);
-        if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
-            if k == 30 {
-                let truth = zeta_ew * pose_w;
-                let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
-                assert!(err_m < 5.0, "frame 30 tracked {err_m} m off");
-            }
-            states.push((k, out.state));
-        }
-    }
-    assert_tracking_from(&states, 29);
-    let c = *vns.counters();
-    assert_eq!(
-        (c.tracking_losses, c.motion_model_recoveries),
-        (0, 1),
-        "{c:?}"
-    );
-}
-
-/// A roll-rate step at frame 30 (an aileron at a roll-in): the image turns by 3° (58 px,
-/// 3.6 px at sparse alignment's level 4) more than the constant-velocity guess says. On
-/// this texture alignment from the guess holds up to about 2.6°, and matching reaches a
-/// few pixels only, so the frame is tracked from a turned start (counted apart) or lost.
-/// The rate then stays, so the next frames track from their own alignment.
-#[test]
-fn a_roll_rate_step_beyond_the_alignment_basin_is_tracked_from_a_turned_start() {
-    let (cam, mut vns) = small_vns();
-    let ground = GROUND_5;
-    let zeta_ew = zeta_ew();
-    let step_deg: f64 = 3.0;
-    let mut states = Vec::new();
-    for k in 0..34_u64 {
-        let t_us = 1_000_000 + k * 100_000;
-        let t = k as f64 * 0.1;
-        let roll_rad = step_deg.to_radians() * k.saturating_sub(29) as f64;
-        let pose_w = nadir_pose(30.0 * t, 1.5 * t, 1_000.0, [roll_rad, 0.0, 0.002 * t]);
-        let frame = ground.frame(&cam, &pose_w, t_us);
-        let start = start_at(&zeta_ew, &pose_w);
-        if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
-            if k >= 30 {
-                let truth = zeta_ew * pose_w;
-                let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
-                let err_deg = (truth.rotation.inverse() * out.zeta_ec.rotation)
-                    .angle()
-                    .to_degrees();
-                assert!(
-                    err_m < 5.0 && err_deg < 0.1,
-                    "frame {k}: {err_m} m, {err_deg}°"
-                );
-            }
-            states.push((k, out.state));
-        }
-    }
-    assert_tracking_from(&states, 29);
-    let c = *vns.counters();
-    assert_eq!(
-        (
-            c.tracking_losses,
-            c.motion_model_recoveries,
-            c.turned_start_recoveries
-        ),
-        (0, 1, 1),
-        "{c:?}"
-    );
-}
-
-/// A frame that tracks from no start is lost without touching the map: matching around
-/// wrong starts fails good points, and charging them would delete some of the points the
-/// relocalisation needs. Frame 30 shows other ground; frame 31 the right ground again.
-#[test]
-fn a_lost_frame_leaves_the_map_points_as_they_were() {
-    let (cam, mut vns) = small_vns();
-    let ground = GROUND_5;
-    let elsewhere = Ground {
-        seed: 99,
-        ground_z_m: 0.0,
-    };
-    let zeta_ew = zeta_ew();
-    let snapshot = |vns: &Vns| {
-        let points: Vec<_> = vns
-            .map()
-            .points()
-            .map(|(id, p)| (id, p.p_e, p.kind, p.successes, p.failures))
-            .collect();
-        (points, vns.map().keyframes().count(), vns.seeds.len())
-    };
-    let mut before = None;
-    for k in 0..32_u64 {
-        let t_us = 1_000_000 + k * 100_000;
-        let pose_w = pose_at(k);
-        let scene = if k == 30 { &elsewhere } else { &ground };
-        let frame = scene.frame(&cam, &pose_w, t_us);
-        let start = start_at(&zeta_ew, &pose_w);
-        if k == 30 {
-            assert_eq!(vns.state(), VnsState::Tracking);
-            before = Some(snapshot(&vns));
-        }
-        let out = vns.process(&frame, Some(&start)).unwrap();
-        if k == 30 {
-            assert_eq!(out.map(|o| o.state), Some(VnsState::Relocalising));
-            assert_eq!(
-                Some(snapshot(&vns)),
-                before,
-                "the lost frame changed the map"
-            );
-        }
-    }
-    let c = *vns.counters();
-    assert_eq!((c.tracking_losses, c.relocalisations), (1, 1), "{c:?}");
     assert_eq!(vns.state(), VnsState::Tracking);
 }
