@@ -4,21 +4,29 @@
 //! deterministic: the mapping work of SVO's second thread (depth filter, new keyframes) runs
 //! inside [`Vns::process`] after the motion work of the same frame.
 //!
-//! Per frame, after the two-view initialisation ([`crate::vision::homography`]):
-//! 1. sparse image alignment against the previous frame ([`crate::vision::sparse_align`]);
-//! 2. reprojection of the points of the closest overlapping keyframes and of the candidates
-//!    into the grid, one direct match per cell ([`crate::vision::matcher`]);
-//! 3. pose optimisation ([`crate::vision::pose_opt`]), outliers dropped;
-//! 4. tracking-quality check; on a failure, steps 2–4 again from second starts (sparse
-//!    alignment can settle a texture period away; [`Vns::second_chance`]), and only then a
-//!    tracking loss, which starts relocalisation against the closest keyframe. Steps 2–4 do not
-//!    touch the map ([`Vns::attempt`]); what follows applies to the start that tracked;
-//! 5. structure optimisation of the least recently refined points
-//!    ([`crate::vision::structure_opt`]);
-//! 6. keyframe selection (no overlapping keyframe within 0.12 × the median depth), new seeds on
-//!    free cells, the furthest keyframe dropped beyond the map's size;
-//! 7. depth-filter update of every live seed by epipolar search; converged seeds become
-//!    candidates.
+//! The per-frame driver ([`Vns::process`], `Vns::commit`) and the public types are here; the
+//! stages are in the submodules. Per frame, in the order the code runs them (docs/VNS.md,
+//! "Per frame", has the details):
+//! 1. two-view initialisation until it succeeds (`init.rs`; [`crate::vision::homography`]);
+//!    afterwards `Vns::track` (`tracking.rs`) runs steps 2–6:
+//! 2. sparse image alignment against the previous frame ([`crate::vision::sparse_align`]);
+//! 3. reprojection of the points of the closest overlapping keyframes and of the candidates
+//!    into the grid, one direct match per cell (`reprojection.rs`; [`crate::vision::matcher`]);
+//! 4. pose optimisation ([`crate::vision::pose_opt`]), outliers dropped;
+//! 5. tracking-quality check. Steps 3–5 do not touch the map ([`Vns::attempt`]);
+//! 6. on a failure, steps 3–5 again from second starts (sparse alignment can settle a texture
+//!    period away; [`Vns::second_chance`]), and only then a tracking loss, which starts
+//!    relocalisation against the closest keyframe. What follows (`Vns::commit`) applies to
+//!    the start that tracked:
+//! 7. the match verdicts of step 3 applied to the map points (`reprojection.rs`);
+//! 8. structure optimisation of the least recently refined points (`tracking.rs`;
+//!    [`crate::vision::structure_opt`]);
+//! 9. keyframe selection (no overlapping keyframe within 0.12 × the median depth), decided
+//!    before the seeds are updated (`mapping.rs`);
+//! 10. depth-filter update of every live seed by epipolar search; converged seeds become
+//!     candidates (`mapping.rs`);
+//! 11. insertion of the keyframe selected in step 9: the furthest keyframe dropped beyond the
+//!     map's size, new seeds on free cells (`mapping.rs`).
 //!
 //! Settings are SVO 1's defaults adapted to the 768 × 1024 camera (docs/REFERENCES.md); the map
 //! keeps [`VnsConfig::max_keyframes`] keyframes (SVO's "accurate" preset, 50) so that terrain
@@ -354,7 +362,8 @@ impl Vns {
         }
     }
 
-    /// Steps 5–7 for a frame that tracked: the match verdicts, structure, keyframe, seeds.
+    /// Steps 7–11 for a frame that tracked: the match verdicts, structure, keyframe selection,
+    /// seeds, keyframe insertion.
     /// The verdicts wait until here: matching around a wrong start fails good points, and
     /// charging them would starve the second chances and the relocalisation that follow.
     fn commit(&mut self, t_us: u64, pyramid: &Arc<Pyramid>, attempt: &mut Attempt) -> bool {

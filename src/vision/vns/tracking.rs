@@ -300,7 +300,7 @@ impl Vns {
         })
     }
 
-    /// Steps 2–4 from a start pose (matching, pose optimisation, the quality test), without
+    /// Steps 3–5 from a start pose (matching, pose optimisation, the quality test), without
     /// touching the map: `Err(matched)` on a tracking failure.
     fn attempt(
         &self,
