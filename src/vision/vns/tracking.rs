@@ -163,7 +163,10 @@ impl Vns {
     ///
     /// A frame that tracks from its first alignment never comes here, so a flight in which
     /// every frame does is unchanged by it. `Err` carries the most matches any start found.
-    #[allow(clippy::too_many_arguments)]
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the frame's alignment inputs and the tracking state, each used once"
+    )]
     fn second_chance(
         &self,
         reference: Option<&LastFrame>,
