@@ -13,6 +13,8 @@
 //! - [`features`]: grid FAST detection with the Shi-Tomasi score, one feature per cell.
 //! - [`homography`]: the two-view initialisation: homography by RANSAC, its decomposition, the
 //!   metric scale from the height over the terrain, triangulation.
+//! - [`iavns`]: the IA-VNS's own steps: the PI-inspired activation of the inertial priors and
+//!   the joint prior-based pose optimisation.
 //! - [`matcher`]: direct matching: affine-warped patches, 2-D feature alignment, epipolar search.
 //! - [`klt`]: pyramidal Lucas-Kanade tracking of the first image's corners for the
 //!   initialisation.
@@ -30,6 +32,7 @@ pub mod camera;
 pub mod depth_filter;
 pub mod features;
 pub mod homography;
+pub mod iavns;
 pub mod klt;
 pub mod map;
 pub mod matcher;

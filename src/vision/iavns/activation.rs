@@ -1,0 +1,1 @@
+//! PI-inspired activation of the IA-VNS priors (paper section "IA-VNS PI activation").
