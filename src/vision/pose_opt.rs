@@ -77,8 +77,25 @@ impl Default for PoseOptConfig {
 /// (e.g. the IA-VNS's inertial priors). `h` and `g` are in the units of the reprojection terms:
 /// squared pixels (at level 0) per squared tangent unit.
 pub trait PosePrior {
-    /// Add the prior's `H` and gradient `g` at `zeta_ec`.
-    fn add(&self, zeta_ec: &Isometry3<f64>, h: &mut Matrix6<f64>, g: &mut Vector6<f64>);
+    /// Add the prior's `H` and gradient `g` at `zeta_ec` and return its share of the costs
+    /// there, which the iteration's roll-back and stopping tests then see beside the
+    /// reprojection terms.
+    fn add(
+        &self,
+        zeta_ec: &Isometry3<f64>,
+        h: &mut Matrix6<f64>,
+        g: &mut Vector6<f64>,
+    ) -> PriorCost;
+}
+
+/// A prior's share of the optimisation's costs at a pose.
+#[derive(Debug, Clone, Copy, PartialEq, Default)]
+pub struct PriorCost {
+    /// Its term of the weighted squared error that the Gauss-Newton step minimises (the
+    /// quantity whose growth rolls a step back), px².
+    pub squared_px2: f64,
+    /// Its term of the sum of norms `E_RP` that the stopping test watches, px.
+    pub norm_px: f64,
 }
 
 /// Why the optimisation failed.
@@ -218,6 +235,13 @@ pub fn optimize_pose(
         if iter == 0 {
             initial_cost_px = cost;
         }
+        // With a prior the tests below watch the joint costs (`E_PO` for the stopping test).
+        let prior_cost = prior.map_or(PriorCost::default(), |p| p.add(&zeta, &mut h, &mut g));
+        let (chi2, cost) = if prior.is_some() {
+            (chi2 + prior_cost.squared_px2, cost + prior_cost.norm_px)
+        } else {
+            (chi2, cost)
+        };
         // The weighted error grew: the last step overshot; keep the pose before it.
         if let Some((before, chi2_before, cost_before)) = prev {
             if chi2.is_nan() || chi2 > chi2_before {
@@ -227,9 +251,6 @@ pub fn optimize_pose(
             if cost_before - cost < cfg.min_cost_decrease_px {
                 break;
             }
-        }
-        if let Some(p) = prior {
-            p.add(&zeta, &mut h, &mut g);
         }
         let step = -(h.cholesky().ok_or(PoseOptError::Numerical)?.solve(&g));
         if !step.iter().all(|v| v.is_finite()) {
@@ -416,11 +437,20 @@ mod tests {
     fn a_prior_enters_the_normal_equations() {
         struct Hold(Isometry3<f64>, f64);
         impl PosePrior for Hold {
-            fn add(&self, zeta: &Isometry3<f64>, h: &mut Matrix6<f64>, g: &mut Vector6<f64>) {
+            fn add(
+                &self,
+                zeta: &Isometry3<f64>,
+                h: &mut Matrix6<f64>,
+                g: &mut Vector6<f64>,
+            ) -> PriorCost {
                 // Stiffness `s` on `zeta ⊖ target` (first order).
                 let d = se3::minus(zeta, &self.0);
                 *h += Matrix6::identity() * self.1;
                 *g += d * self.1;
+                PriorCost {
+                    squared_px2: self.1 * d.norm_squared(),
+                    norm_px: self.1.sqrt() * d.norm(),
+                }
             }
         }
         let mut rng = SplitMix(42);
