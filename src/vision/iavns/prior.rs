@@ -298,7 +298,7 @@ mod tests {
 
     /// Ground points 1,000 m below the camera (±50 m of relief) seen without noise.
     fn observations(camera: &Camera, zeta_ec: &Isometry3<f64>, n: usize) -> Vec<PoseObservation> {
-        let mut rng = SplitMix(0x1a_b5e_ed);
+        let mut rng = SplitMix(0x001A_B5EE);
         (0..n)
             .map(|_| {
                 let px = Vector2::new(
