@@ -25,7 +25,9 @@ use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
 use crate::math::wgs84;
 use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent};
 use crate::vision::camera::{Camera, CameraConfig, CameraConfigError, Mounting};
-use crate::vision::vns::{Vns, VnsConfig, VnsCounters, VnsError, VnsOutput, VnsStart, VnsState};
+use crate::vision::vns::{
+    InertialFrame, Vns, VnsConfig, VnsCounters, VnsError, VnsOutput, VnsStart, VnsState,
+};
 use history::{HistoryPose, PoseHistory};
 use nalgebra::{Isometry3, Vector3};
 use policy::{Running, StartState};
@@ -301,11 +303,12 @@ impl Navigator {
     /// terrain at the frame's time (used only until it has initialised).
     fn navigate_frame(&mut self, frame: &Frame) {
         let start = self.vns_start(frame.t_us);
+        let ins = self.inertial_frame(frame.t_us);
         let Some((vns, zeta_bc)) = self.vns.as_mut() else {
             return;
         };
         let zeta_bc = *zeta_bc;
-        match vns.process(frame, start.as_ref()) {
+        match vns.process(frame, start.as_ref(), ins.as_ref()) {
             Ok(Some(out)) => {
                 self.vision = vision_status(&out);
                 self.vision_fix =
@@ -317,6 +320,25 @@ impl Navigator {
             }
             Err(_) => self.stats.frames_rejected += 1,
         }
+    }
+
+    /// The INS at `t_us` as the IA-VNS reads it (only when its changes need it).
+    fn inertial_frame(&self, t_us: u64) -> Option<InertialFrame> {
+        let (vns, zeta_bc) = self.vns.as_ref()?;
+        if !vns.config().aiding.needs_ins() {
+            return None;
+        }
+        let pose = self.history.at(t_us)?;
+        let q_eb = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad) * pose.q_nb;
+        Some(InertialFrame {
+            zeta_eb: Isometry3::from_parts(
+                nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
+                q_eb,
+            ),
+            q_nb: pose.q_nb,
+            h_m: pose.pos.h_m,
+            zeta_bc: *zeta_bc,
+        })
     }
 
     /// `x̊₀` at `t_us`: the INS camera pose and the height over the terrain, when both are

@@ -32,6 +32,7 @@
 //! keeps [`VnsConfig::max_keyframes`] keyframes (SVO's "accurate" preset, 50) so that terrain
 //! seen before a turn can be re-observed after it.
 
+mod aiding;
 mod init;
 mod mapping;
 mod reprojection;
@@ -51,6 +52,8 @@ use super::pose_opt::PoseOptConfig;
 use super::pyramid::{Pyramid, PyramidError};
 use super::sparse_align::SparseAlignConfig;
 use crate::sensors::Frame;
+use aiding::AidingState;
+pub use aiding::{AidingConfig, AidingCounters, InertialFrame};
 use init::InitTracks;
 use mapping::LiveSeed;
 use tracking::Attempt;
@@ -101,6 +104,8 @@ pub struct VnsConfig {
     /// A keyframe observation is a reference for matching only within this viewing-angle
     /// cosine of the current view (SVO: 0.5, 60°).
     pub min_view_cos: f64,
+    /// The IA-VNS's changes (all off: the VNS).
+    pub aiding: AidingConfig,
 }
 
 impl Default for VnsConfig {
@@ -126,6 +131,7 @@ impl Default for VnsConfig {
             seed_keyframes: 3,
             reprojection_border_px: 8.0,
             min_view_cos: 0.5,
+            aiding: AidingConfig::default(),
         }
     }
 }
@@ -139,6 +145,9 @@ pub enum VnsError {
     /// The frame does not fit the camera (size, buffer).
     #[error("vns: bad frame: {0}")]
     BadFrame(#[from] PyramidError),
+    /// The IA-VNS's activation settings are invalid.
+    #[error("vns: {0}")]
+    Aiding(#[from] crate::vision::iavns::activation::ActivationError),
     /// A frame not after the previous one.
     #[error("vns: frame at {t_us} µs is not after the previous one at {previous_us} µs")]
     OutOfOrder {
@@ -258,6 +267,8 @@ pub struct Vns {
     last_motion: Option<Isometry3<f64>>,
     /// Last good pose and its time (what relocalisation starts from).
     last_good: Option<(u64, Isometry3<f64>)>,
+    /// The IA-VNS's state (with any of its changes switched on).
+    aiding: Option<AidingState>,
 }
 
 impl Vns {
@@ -271,6 +282,10 @@ impl Vns {
             },
             &camera,
         )?;
+        let a = &cfg.aiding;
+        let aiding = (a.priors || a.inertial_prediction || a.current_features_in_structure)
+            .then(|| AidingState::new(a))
+            .transpose()?;
         let n = detector.grid().n_cells();
         let mut cell_order: Vec<usize> = (0..n).collect();
         // Fisher-Yates with SplitMix64.
@@ -298,6 +313,7 @@ impl Vns {
             counters: VnsCounters::default(),
             last_motion: None,
             last_good: None,
+            aiding,
         })
     }
 
@@ -316,18 +332,25 @@ impl Vns {
         &self.map
     }
 
+    /// The settings.
+    pub fn config(&self) -> &VnsConfig {
+        &self.cfg
+    }
+
     /// The camera.
     pub fn camera(&self) -> &Camera {
         &self.camera
     }
 
     /// Process one frame. `start` is the initial estimate at this frame's time; it is used only
-    /// while the VNS waits for its first image (the VNS never reads the INS afterwards).
+    /// while the VNS waits for its first image (the VNS never reads the INS afterwards). `ins`
+    /// is the INS at the frame's time, read only by the IA-VNS's changes ([`AidingConfig`]).
     /// Returns the visual pose once initialised.
     pub fn process(
         &mut self,
         frame: &Frame,
         start: Option<&VnsStart>,
+        ins: Option<&InertialFrame>,
     ) -> Result<Option<VnsOutput>, VnsError> {
         let previous_us = self
             .last
@@ -354,10 +377,15 @@ impl Vns {
         self.frame_index += 1;
         match self.state {
             VnsState::WaitingForStart | VnsState::Initialising => {
-                Ok(self.initialise(frame.t_us, pyramid, start))
+                let out = self.initialise(frame.t_us, pyramid, start);
+                if self.state == VnsState::Tracking {
+                    // The first keyframe's INS pose: the next frame's prediction starts there.
+                    self.remember_ins(ins);
+                }
+                Ok(out)
             }
             VnsState::Tracking | VnsState::Relocalising => {
-                Ok(Some(self.track(frame.t_us, pyramid)))
+                Ok(Some(self.track(frame.t_us, pyramid, ins)))
             }
         }
     }
@@ -368,7 +396,12 @@ impl Vns {
     /// charging them would starve the second chances and the relocalisation that follow.
     fn commit(&mut self, t_us: u64, pyramid: &Arc<Pyramid>, attempt: &mut Attempt) -> bool {
         self.apply_verdicts(std::mem::take(&mut attempt.verdicts));
-        self.optimize_structure(&attempt.inliers);
+        let current = self
+            .cfg
+            .aiding
+            .current_features_in_structure
+            .then_some(attempt.zeta_ec);
+        self.optimize_structure(&attempt.inliers, current.as_ref());
         let keyframe = self.needs_keyframe(&attempt.zeta_ec, &attempt.inliers);
         self.update_seeds(pyramid, &attempt.zeta_ec);
         if keyframe {

@@ -87,7 +87,7 @@ fn tracks_a_straight_flight_over_a_textured_plane() {
             zeta_ec: truth,
             h_agl_m: -pose_w.translation.vector.z,
         };
-        let out = vns.process(&frame, Some(&start)).unwrap();
+        let out = vns.process(&frame, Some(&start), None).unwrap();
         let Some(out) = out else {
             assert!(k < 40, "not initialised after {k} frames");
             continue;
@@ -142,7 +142,7 @@ fn a_lost_track_is_counted_and_relocalised_and_bad_frames_rejected() {
             ground.frame(&cam, &pose_w, t_us)
         };
         let start = start_at(&zeta_ew, &pose_w);
-        if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
+        if let Some(out) = vns.process(&frame, Some(&start), None).unwrap() {
             states.push((k, out.state));
         }
     }
@@ -175,7 +175,7 @@ fn a_lost_track_is_counted_and_relocalised_and_bad_frames_rejected() {
         },
     ];
     for f in &bad {
-        assert!(vns.process(f, None).is_err());
+        assert!(vns.process(f, None, None).is_err());
     }
     assert_eq!(vns.counters().bad_frames, 3);
     assert_eq!(vns.state(), VnsState::Tracking);

@@ -12,7 +12,7 @@ use std::sync::Arc;
 use nalgebra::{Isometry3, Vector6};
 
 use super::reprojection::{FrameMatch, PointVerdict};
-use super::{LastFrame, Vns, VnsOutput, VnsState};
+use super::{InertialFrame, LastFrame, Vns, VnsOutput, VnsState};
 use crate::math::se3;
 use crate::vision::map::{PointId, PointKind};
 use crate::vision::pose_opt::{PoseObservation, optimize_pose};
@@ -30,9 +30,14 @@ const SECOND_CHANCE_TURN_DEG: f64 = 0.75;
 pub(super) struct Attempt {
     pub(super) zeta_ec: Isometry3<f64>,
     pub(super) inliers: Vec<FrameMatch>,
-    n_matched: usize,
-    rms_px: f64,
+    pub(super) n_matched: usize,
+    pub(super) rms_px: f64,
     pub(super) verdicts: Vec<PointVerdict>,
+    /// The start the pose optimisation converged from (`ζ_i0`).
+    pub(super) start: Isometry3<f64>,
+    /// Every match and its observation, in the same order (the IA-VNS optimises again).
+    pub(super) matches: Vec<FrameMatch>,
+    pub(super) observations: Vec<PoseObservation>,
 }
 
 /// Which second chance tracked a frame.
@@ -45,7 +50,12 @@ enum SecondChance {
 }
 
 impl Vns {
-    pub(super) fn track(&mut self, t_us: u64, pyramid: Arc<Pyramid>) -> VnsOutput {
+    pub(super) fn track(
+        &mut self,
+        t_us: u64,
+        pyramid: Arc<Pyramid>,
+        ins: Option<&InertialFrame>,
+    ) -> VnsOutput {
         let Some(last) = self.last.take() else {
             self.state = VnsState::WaitingForStart;
             return self.output(t_us, Isometry3::identity(), 0, 0, f64::NAN, false);
@@ -65,17 +75,35 @@ impl Vns {
             Some(m) if !relocalising => se3::renormalized(&(last.zeta_ec * m)),
             _ => last.zeta_ec,
         };
-        let aligned = reference
-            .as_ref()
-            .and_then(|r| self.align(r, &pyramid, &guess, &self.cfg.sparse_align));
+        // The IA-VNS's inertial prediction ζ* replaces sparse alignment; sparse alignment and
+        // the second chances remain for a frame it does not track.
+        let predicted = ins
+            .filter(|_| !relocalising)
+            .and_then(|i| self.inertial_prediction(&last.zeta_ec, i));
+        let from_prediction = predicted.map(|p| self.attempt(&pyramid, p, &last));
+        if let (Some(state), Some(tried)) = (self.aiding.as_mut(), from_prediction.as_ref()) {
+            state.counters.inertial_starts += 1;
+            if tried.is_err() {
+                state.counters.inertial_start_failures += 1;
+            }
+        }
         let min_aligned = if relocalising {
             self.cfg.relocalise_min_tracked
         } else {
             1
         };
-        let first = match aligned {
-            Some((zeta, n)) if n >= min_aligned => self.attempt(&pyramid, zeta, &last),
-            _ => Err(0),
+        let (aligned, first) = match from_prediction {
+            Some(Ok(a)) => (None, Ok(a)),
+            _ => {
+                let aligned = reference
+                    .as_ref()
+                    .and_then(|r| self.align(r, &pyramid, &guess, &self.cfg.sparse_align));
+                let first = match aligned {
+                    Some((zeta, n)) if n >= min_aligned => self.attempt(&pyramid, zeta, &last),
+                    _ => Err(0),
+                };
+                (aligned, first)
+            }
         };
         let result = first.or_else(|n| {
             let second = self.second_chance(
@@ -102,7 +130,11 @@ impl Vns {
         });
         match result {
             Ok(mut attempt) => {
+                if let Some(i) = ins {
+                    self.apply_priors(t_us, &mut attempt, i);
+                }
                 let keyframe = self.commit(t_us, &pyramid, &mut attempt);
+                self.remember_ins(ins);
                 let zeta_ec = attempt.zeta_ec;
                 if relocalising {
                     self.counters.relocalisations += 1;
@@ -316,16 +348,20 @@ impl Vns {
         if n_matched < self.cfg.min_matches {
             return Err(n_matched);
         }
-        let observations: Vec<PoseObservation> = matches
+        // Matches whose point is gone cannot be observed; keep the two lists aligned.
+        let (matches, observations): (Vec<FrameMatch>, Vec<PoseObservation>) = matches
             .iter()
             .filter_map(|m| {
-                Some(PoseObservation {
-                    p_e: self.map.point(m.point)?.p_e,
-                    px: m.px,
-                    level: m.level,
-                })
+                Some((
+                    *m,
+                    PoseObservation {
+                        p_e: self.map.point(m.point)?.p_e,
+                        px: m.px,
+                        level: m.level,
+                    },
+                ))
             })
-            .collect();
+            .unzip();
         // A plane seen through a narrow field of view has two poses that explain it almost
         // equally (the tilt flip): sparse alignment, which stops at level 2, cannot tell them
         // apart and may start the optimisation in the wrong basin. The constant-velocity
@@ -336,11 +372,13 @@ impl Vns {
                 .map(|m| se3::renormalized(&(last.zeta_ec * m)))
                 .filter(|predicted| *predicted != start),
         );
-        let Some(opt) = starts
+        let Some((start, opt)) = starts
             .filter_map(|start| {
-                optimize_pose(&self.camera, &start, &observations, &self.cfg.pose, None).ok()
+                optimize_pose(&self.camera, &start, &observations, &self.cfg.pose, None)
+                    .ok()
+                    .map(|opt| (start, opt))
             })
-            .min_by(|a, b| a.final_cost_px.total_cmp(&b.final_cost_px))
+            .min_by(|a, b| a.1.final_cost_px.total_cmp(&b.1.final_cost_px))
         else {
             return Err(n_matched);
         };
@@ -367,16 +405,27 @@ impl Vns {
             n_matched,
             rms_px: opt.inlier_rms_px,
             verdicts,
+            start,
+            matches,
+            observations,
         })
     }
 
-    /// Refine the least recently refined matched points over their keyframe observations.
-    pub(super) fn optimize_structure(&mut self, matches: &[FrameMatch]) {
+    /// Refine the least recently refined matched points over their keyframe observations and,
+    /// with `current` (the IA-VNS), the current frame's observation at that final pose.
+    pub(super) fn optimize_structure(
+        &mut self,
+        matches: &[FrameMatch],
+        current: Option<&Isometry3<f64>>,
+    ) {
         let mut order: Vec<(u64, PointId)> = matches
             .iter()
             .filter_map(|m| Some((self.map.point(m.point)?.last_structure_opt, m.point)))
             .collect();
         order.sort_unstable();
+        let current_px: std::collections::BTreeMap<PointId, nalgebra::Vector2<f64>> = current
+            .map(|_| matches.iter().map(|m| (m.point, m.px)).collect())
+            .unwrap_or_default();
         for &(_, pid) in order.iter().take(self.cfg.structure_points) {
             let Some(p) = self.map.point(pid) else {
                 continue;
@@ -391,6 +440,14 @@ impl Vns {
                         px: kf.features.get(o.feature)?.px,
                     })
                 })
+                .chain(
+                    current
+                        .zip(current_px.get(&pid))
+                        .map(|(z, px)| PointObservation {
+                            zeta_ec: *z,
+                            px: *px,
+                        }),
+                )
                 .collect();
             let refined = optimize_point(
                 &self.camera,
@@ -448,7 +505,7 @@ mod tests {
             }
             let frame = ground.frame(&cam, &pose_w, t_us);
             let start = start_at(&zeta_ew, &pose_w);
-            if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
+            if let Some(out) = vns.process(&frame, Some(&start), None).unwrap() {
                 if k == 30 {
                     let truth = zeta_ew * pose_w;
                     let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
@@ -485,7 +542,7 @@ mod tests {
             let pose_w = nadir_pose(30.0 * t, 1.5 * t, 1_000.0, [roll_rad, 0.0, 0.002 * t]);
             let frame = ground.frame(&cam, &pose_w, t_us);
             let start = start_at(&zeta_ew, &pose_w);
-            if let Some(out) = vns.process(&frame, Some(&start)).unwrap() {
+            if let Some(out) = vns.process(&frame, Some(&start), None).unwrap() {
                 if k >= 30 {
                     let truth = zeta_ew * pose_w;
                     let err_m = (out.zeta_ec.translation.vector - truth.translation.vector).norm();
@@ -544,7 +601,7 @@ mod tests {
                 assert_eq!(vns.state(), VnsState::Tracking);
                 before = Some(snapshot(&vns));
             }
-            let out = vns.process(&frame, Some(&start)).unwrap();
+            let out = vns.process(&frame, Some(&start), None).unwrap();
             if k == 30 {
                 assert_eq!(out.map(|o| o.state), Some(VnsState::Relocalising));
                 assert_eq!(
