@@ -239,3 +239,9 @@ fn invalid_settings_are_refused_with_their_key() {
     };
     assert!(matches!(cfg.validate(), Err(VnsConfigError::NotToml(_))));
 }
+
+#[test]
+fn the_shipped_settings_file_holds_the_defaults() {
+    let cfg: VnsConfig = toml::from_str(include_str!("../../../config/vision.toml")).unwrap();
+    assert_eq!(cfg, VnsConfig::default());
+}
