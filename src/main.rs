@@ -65,8 +65,8 @@ enum Command {
         #[arg(long, default_value_t = 1, value_name = "N")]
         every: u64,
         /// Replace one recorded setting (repeatable): a dotted key of the recorded
-        /// navigation settings and a TOML value, e.g. `ins.attitude.q_w_nb_rad2ps2=1e-3`.
-        /// An unknown key is an error.
+        /// navigation settings and a TOML value, e.g. `ins.attitude.q_w_nb_rad2ps2=1e-3` or
+        /// `vision.pose.max_iterations=5`. An unknown key is an error.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
     },

@@ -50,7 +50,8 @@ struct SetupArgs {
     #[arg(long)]
     turbulence: Option<f64>,
     /// Directory with `aircraft.toml`, `sensors.toml`, `control.toml`, `ins.toml`,
-    /// `camera.toml` (with --terrain) and
+    /// `vision.toml` (the `[vision]` settings of the navigator), `camera.toml` (with --terrain)
+    /// and
     /// `scenarios/scenario{1,2}.toml` replacing the built-in defaults (each file optional).
     #[arg(long)]
     config_dir: Option<PathBuf>,

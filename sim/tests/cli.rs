@@ -154,6 +154,18 @@ fn bad_configuration_files_name_the_field() {
             "warmup_s = \"long\"",
             "warmup_s",
         ),
+        (
+            "vision.toml",
+            "tukey_k = 4.685",
+            "tukey_k = 0.0",
+            "vision.pose.tukey_k",
+        ),
+        (
+            "vision.toml",
+            "[pose]",
+            "[pose]\nmystery_vns = 1",
+            "mystery_vns",
+        ),
     ];
     for (file, from, to, needle) in cases {
         let case_dir = dir.join(needle);

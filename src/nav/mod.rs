@@ -77,6 +77,10 @@ pub struct NavConfig {
     /// The down-looking camera, if one is fitted: the visual navigation runs on its frames.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub camera: Option<NavCamera>,
+    /// The visual navigation's settings (used with a camera). Always written, so that a log
+    /// records what its flight ran with; logs from before it take the defaults.
+    #[serde(default)]
+    pub vision: VnsConfig,
     /// The time contract's reorder window, µs: a frame taken more than this before the newest
     /// IMU sample is rejected and counted (`frames_late`); one within it is navigated with the
     /// INS pose at its own time (the pose history spans [`POSE_HISTORY_US`]).
@@ -96,6 +100,7 @@ impl NavConfig {
             ins,
             start: StartPolicy::new(mag_decimal_year),
             camera: None,
+            vision: VnsConfig::default(),
             reorder_window_us: default_reorder_window_us(),
         }
     }
@@ -160,6 +165,8 @@ impl Navigator {
     /// A navigator waiting for its first start. Fails on an invalid configuration.
     pub fn new(cfg: &NavConfig) -> Result<Self, NavError> {
         cfg.ins.validate().map_err(InsError::from)?;
+        // Checked with or without a camera: the settings are recorded either way.
+        cfg.vision.validate().map_err(VnsError::from)?;
         let vns = match &cfg.camera {
             Some(c) => {
                 let camera = Camera::from_config(&c.intrinsics)?;
@@ -167,7 +174,7 @@ impl Navigator {
                 // the visual navigation's resolution at flight heights.
                 let zeta_bc = c.mounting.zeta_bc(&Vector3::zeros());
                 Some((
-                    Vns::new(camera, VnsConfig::default(), VNS_CELL_ORDER_SEED)?,
+                    Vns::new(camera, cfg.vision.clone(), VNS_CELL_ORDER_SEED)?,
                     zeta_bc,
                 ))
             }
@@ -640,5 +647,55 @@ mod tests {
         assert!((nav.imu_noise().unwrap().gyro_ratio / 1000.0 - 1.0).abs() < 0.1);
         // The events count as received before the initialisation, as any other.
         assert_eq!(nav.stats().events_before_init, 8_000);
+    }
+
+    #[test]
+    fn the_vision_settings_are_used_and_bad_ones_refused_at_construction() {
+        let camera = NavCamera {
+            intrinsics: CameraConfig::default(),
+            mounting: Mounting {
+                q_bc: UnitQuaternion::identity(),
+                t_rc_b_m: Vector3::zeros(),
+            },
+        };
+        let mut cfg = NavConfig::new(InsConfig::default(), 2026.5);
+        cfg.vision.pose.max_iterations = 5;
+        for with_camera in [false, true] {
+            cfg.camera = with_camera.then(|| camera.clone());
+            let nav = Navigator::new(&cfg).unwrap();
+            assert_eq!(nav.config().vision.pose.max_iterations, 5);
+            assert_eq!(
+                nav.vns
+                    .as_ref()
+                    .map(|(v, _)| v.config().pose.max_iterations),
+                with_camera.then_some(5)
+            );
+        }
+        type Spoil = fn(&mut VnsConfig);
+        let bad: [(&str, Spoil); 4] = [
+            ("pose.tukey_k", |v| v.pose.tukey_k = f64::NAN),
+            ("sparse_align.min_level", |v| {
+                v.sparse_align.min_level = 3;
+                v.sparse_align.max_level = 2;
+            }),
+            ("detector.cell_size_px", |v| v.detector.cell_size_px = 0),
+            ("seed_keyframes", |v| v.seed_keyframes = 0),
+        ];
+        for with_camera in [false, true] {
+            for (key, spoil) in bad {
+                let mut cfg = cfg.clone();
+                cfg.camera = with_camera.then(|| camera.clone());
+                spoil(&mut cfg.vision);
+                let err = Navigator::new(&cfg).expect_err(key);
+                assert!(
+                    matches!(err, NavError::Vision(VnsError::Config(_))),
+                    "{key}: {err:?}"
+                );
+                assert!(
+                    err.to_string().contains(&format!("vision.{key} =")),
+                    "{err}"
+                );
+            }
+        }
     }
 }

@@ -263,6 +263,50 @@ mod tests {
     }
 
     #[test]
+    fn vision_settings_are_recorded_and_overridden_and_older_logs_take_the_defaults() {
+        let cfg = NavConfig::new(InsConfig::default(), 2025.75);
+        let text = config_to_toml(&cfg);
+        assert!(text.contains("[vision.pose]"), "{text}");
+        let log = log_with(&cfg);
+        let r = SensorLogReader::new(&log[..]).unwrap();
+        let set = |s: &str| vec![s.to_owned()];
+        let got = config_with_overrides(&r, &set("vision.pose.max_iterations=5")).unwrap();
+        let mut expected = cfg.clone();
+        expected.vision.pose.max_iterations = 5;
+        assert_eq!(got, expected, "nothing else changes");
+        let got = config_with_overrides(&r, &set("vision.max_keyframes = 20")).unwrap();
+        assert_eq!(got.vision.max_keyframes, 20);
+        for bad in [
+            "vision.no_such_key=1",
+            "vision.pose.no_such_key=1",
+            "vision.pose.max_iterations.x=1",
+        ] {
+            let err = config_with_overrides(&r, &set(bad));
+            assert!(
+                matches!(err, Err(ReplayError::Override(..) | ReplayError::Config(_))),
+                "{bad}: {err:?}"
+            );
+        }
+        // An invalid value parses; the navigator refuses it.
+        let spoilt = config_with_overrides(&r, &set("vision.pose.tukey_k=0.0")).unwrap();
+        assert!(matches!(
+            Navigator::new(&spoilt),
+            Err(crate::nav::NavError::Vision(_))
+        ));
+        // A log written before the settings had a `[vision]` table.
+        let mut table: toml::Table = toml::from_str(&text).unwrap();
+        assert!(table.remove("vision").is_some());
+        let mut w = crate::io::sensor_log::SensorLogWriter::new(Vec::new()).unwrap();
+        w.write_nav_config(&toml::to_string(&table).unwrap())
+            .unwrap();
+        let old = w.finish().unwrap();
+        let r = SensorLogReader::new(&old[..]).unwrap();
+        assert_eq!(config_of(&r).unwrap(), cfg);
+        let got = config_with_overrides(&r, &set("vision.pose.max_iterations=5")).unwrap();
+        assert_eq!(got, expected);
+    }
+
+    #[test]
     fn a_log_without_settings_is_refused_and_a_broken_one_is_an_error() {
         let log = crate::io::sensor_log::SensorLogWriter::new(Vec::new())
             .unwrap()

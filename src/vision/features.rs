@@ -95,19 +95,23 @@ pub enum FeatureError {
     },
 }
 
-/// Detector settings (SVO defaults adapted to the 768 × 1024 camera).
+/// Detector settings (SVO defaults adapted to the 768 × 1024 camera). TOML table
+/// `[vision.detector]` of the navigation settings; a missing key takes its default.
 #[derive(Debug, Clone, Copy, PartialEq, Serialize, Deserialize)]
 #[serde(deny_unknown_fields, default)]
 pub struct DetectorConfig {
-    /// Side of a grid cell, level-0 px.
+    /// Side of a grid cell, level-0 px (8–1024): at most one feature per cell, so this sets
+    /// how many features a keyframe gets (192 cells of 64 px on 768 × 1024).
     pub cell_size_px: u32,
-    /// FAST-9 threshold, grey levels (0–255).
+    /// FAST-9 threshold, grey levels (1–255): the circle pixels must differ from the centre by
+    /// more than this for a corner.
     pub fast_threshold: u8,
-    /// Minimum Shi-Tomasi score a feature must exceed, (grey levels / level-0 px)².
+    /// Minimum Shi-Tomasi score a feature must exceed, (grey levels / level-0 px)² (half of
+    /// SVO's score, module doc); weaker corners are not kept.
     pub min_shi_tomasi_score: f32,
-    /// Pyramid levels searched, from level 0.
+    /// Pyramid levels searched for corners, a count from level 0 (1–5).
     pub n_levels: u32,
-    /// Corners closer than this to the image edge are ignored, px of their level.
+    /// Corners closer than this to the image edge are ignored, px of their level (5–64).
     pub border_px: u32,
 }
 

@@ -103,25 +103,32 @@ pub enum HomographyError {
     NoValidDecomposition,
 }
 
-/// Settings, with SVO 1's initialisation defaults.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Settings, with SVO 1's initialisation defaults. TOML table `[vision.homography]` of the
+/// navigation settings; a missing key takes its default.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct HomographyConfig {
     /// Inlier threshold on the transfer and reprojection errors, px (SVO: 2 px, used both for
     /// the RANSAC and for the triangulation test `poseoptim_thresh`).
     pub reproj_thresh_px: f64,
-    /// RANSAC iteration cap (OpenCV `findHomography`, which SVO calls: 2000).
+    /// RANSAC iteration cap, a count (OpenCV `findHomography`, which SVO calls: 2000).
     pub max_iterations: u32,
-    /// Probability that one all-inlier sample was drawn; stops RANSAC early (OpenCV: 0.995).
+    /// Probability that one all-inlier sample was drawn, in (0, 1); stops RANSAC early
+    /// (OpenCV: 0.995).
     pub confidence: f64,
-    /// Seed of the RANSAC sampler. Derive it from the run seed and a component name.
+    /// Seed of the RANSAC sampler, an integer from 0 to 2⁶³ − 1 (TOML's largest): the same
+    /// seed and matches give the same homography. Derive it from the run seed and a component
+    /// name.
     pub seed: u64,
-    /// Inliers needed after RANSAC and after triangulation (SVO `init_min_inliers`: 40).
+    /// Inliers needed after RANSAC and after triangulation, a count (SVO `init_min_inliers`:
+    /// 40).
     pub min_inliers: usize,
-    /// Second-best over best "in front" count above which the two last candidates are
-    /// ambiguous and the Sampson error decides (SVO/PTAM: 0.9).
+    /// Second-best over best "in front" count, a ratio in (0, 1], at or above which the two
+    /// last candidates are ambiguous and the Sampson error decides (SVO/PTAM: 0.9).
     pub ambiguity_ratio: f64,
-    /// Smaller over larger Sampson sum above which the Sampson tie-break is itself a tie and
-    /// the normal prior (if given) decides. Beyond SVO, which always takes the lower sum.
+    /// Smaller over larger Sampson sum, a ratio in (0, 1], at or above which the Sampson
+    /// tie-break is itself a tie and the normal prior (if given) decides. Beyond SVO, which
+    /// always takes the lower sum.
     pub sampson_tie_ratio: f64,
 }
 

@@ -36,25 +36,32 @@ pub struct PoseObservation {
     pub level: u32,
 }
 
-/// Settings of the optimisation.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// Settings of the optimisation. TOML table `[vision.pose]` of the navigation settings; a
+/// missing key takes its default.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct PoseOptConfig {
-    /// Largest number of Gauss-Newton iterations.
+    /// Largest number of Gauss-Newton iterations, a count.
     pub max_iterations: u32,
-    /// Tukey's constant on the scaled residual norm.
+    /// Tukey's constant on the residual norm over the robust scale, dimensionless: residuals
+    /// beyond `tukey_k` × scale get zero weight.
     pub tukey_k: f64,
-    /// Robust scale from iteration [`PoseOptConfig::fixed_scale_from_iteration`] on, px.
+    /// Robust scale from iteration [`PoseOptConfig::fixed_scale_from_iteration`] on, px; also
+    /// the floor of the initial scale (1.48 × the median initial residual).
     pub fixed_scale_px: f64,
-    /// First iteration that uses the fixed scale instead of the initial median's.
+    /// First iteration (0-based count) that uses the fixed scale instead of the initial
+    /// median's.
     pub fixed_scale_from_iteration: u32,
     /// Stop when the sum of residual norms `E_RP` decreases by less than this, px.
     pub min_cost_decrease_px: f64,
-    /// Stop when every component of the step is below this (m, rad).
+    /// Stop when every component of the step is at most this: m for the translation, rad for
+    /// the rotation.
     pub min_step: f64,
     /// Observations off by more than this after the optimisation are outliers, px (at their
     /// pyramid level).
     pub outlier_threshold_px: f64,
-    /// Fewer inliers than this is a failure.
+    /// Fewer inliers than this at the end is a failure, a count; the optimisation also needs
+    /// this many usable observations (at least 3) to start.
     pub min_inliers: usize,
 }
 

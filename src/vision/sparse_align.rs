@@ -73,18 +73,23 @@ const LM_MIN_DAMPING: f64 = 1e-3;
 const LM_MAX_DAMPING: f64 = 1e4;
 
 /// Settings (SVO 1 defaults): levels 4 → 2, 30 iterations per level, stop when max |Δ| ≤ 1e-6.
-#[derive(Debug, Clone, Copy, PartialEq)]
+/// TOML table `[vision.sparse_align]` of the navigation settings; a missing key takes its
+/// default.
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct SparseAlignConfig {
-    /// Coarsest pyramid level, where the alignment starts.
+    /// Coarsest pyramid level, where the alignment starts (level `l` is 2^l times coarser than
+    /// the image; at most 4).
     pub max_level: u32,
-    /// Finest pyramid level, where it ends (inclusive).
+    /// Finest pyramid level, where it ends (inclusive; at most `max_level`).
     pub min_level: u32,
-    /// Largest number of Gauss-Newton iterations per level.
+    /// Largest number of Levenberg-Marquardt iterations per level, a count.
     pub max_iterations: u32,
-    /// A level ends when every component of the step `δ` is at most this (m, rad).
+    /// A level ends when every component of the step `δ` is at most this: m for the
+    /// translation, rad for the rotation.
     pub min_step: f64,
-    /// Fewest usable features: a coarser level with fewer is skipped, the finest level with
-    /// fewer is an error.
+    /// Fewest usable features, a count: a coarser level with fewer is skipped, the finest level
+    /// with fewer is an error.
     pub min_features: usize,
 }
 

@@ -46,6 +46,15 @@ pub(crate) fn setup(args: &SetupArgs) -> Result<FlightSetup> {
         setup.ins = ianav::ins::InsConfig::from_toml_str(&text)
             .with_context(|| path.display().to_string())?;
     }
+    if let Some((path, text)) = read_optional(dir, "vision.toml")? {
+        // The keys of the navigation settings' `[vision]` table (docs/VNS.md "Settings").
+        setup.vision = toml::from_str::<ianav::vision::vns::VnsConfig>(&text)
+            .with_context(|| path.display().to_string())?;
+        setup
+            .vision
+            .validate()
+            .with_context(|| path.display().to_string())?;
+    }
     setup.navigation = match args.navigation {
         Navigation::Truth => NavigationMode::Truth,
         Navigation::Ins => NavigationMode::Ins,

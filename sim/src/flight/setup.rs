@@ -24,6 +24,7 @@ use crate::sensors::{SensorSuite, SensorsConfig};
 use crate::terrain::Terrain;
 use crate::terrain::render::{RenderOptions, Renderer};
 use ianav::vision::camera::{Camera, CameraConfig, MountingConfig};
+use ianav::vision::vns::VnsConfig;
 
 /// Errors setting up a flight.
 #[derive(Debug, thiserror::Error)]
@@ -187,6 +188,8 @@ pub struct FlightSetup {
     pub navigation: NavigationMode,
     /// INS configuration (used when `navigation` is `Ins`).
     pub ins: InsConfig,
+    /// Visual navigation settings (used when the navigator runs on the camera's frames).
+    pub vision: VnsConfig,
     /// Camera and terrain (`None`: no frames, the default).
     pub camera: Option<CameraSetup>,
 }
@@ -201,6 +204,9 @@ impl FlightSetup {
         self.ins
             .validate()
             .map_err(|e| FlightError::Ins(ianav::ins::InsError::Config(e)))?;
+        self.vision
+            .validate()
+            .map_err(|e| FlightError::Nav(ianav::nav::NavError::Vision(e.into())))?;
         Ok(())
     }
 
@@ -215,6 +221,7 @@ impl FlightSetup {
             mission_override: None,
             navigation: NavigationMode::default(),
             ins: InsConfig::default(),
+            vision: VnsConfig::default(),
             camera: None,
         })
     }
@@ -363,6 +370,7 @@ impl Flight {
             NavigationMode::Truth => None,
             NavigationMode::Ins => {
                 let mut cfg = NavConfig::new(setup.ins.clone(), scn.magnetic_decimal_year);
+                cfg.vision = setup.vision.clone();
                 cfg.camera = setup
                     .camera
                     .as_ref()
@@ -439,5 +447,18 @@ mod tests {
         setup.sensors.imu_period_s = 0.003; // not a multiple of the 2 ms step
         let err = Flight::new(&setup, 1).err().unwrap().to_string();
         assert!(err.contains("imu_period_s"), "{err}");
+        let mut setup = FlightSetup::builtin(2).unwrap();
+        setup.vision.pose.tukey_k = 0.0;
+        let err = Flight::new(&setup, 1).err().unwrap().to_string();
+        assert!(err.contains("vision.pose.tukey_k"), "{err}");
+    }
+
+    #[test]
+    fn the_navigator_runs_the_setup_s_vision_settings() {
+        let mut setup = FlightSetup::builtin(2).unwrap();
+        setup.vision.pose.max_iterations = 5;
+        let flight = Flight::new(&setup, 1).unwrap();
+        let nav = flight.navigator().unwrap();
+        assert_eq!(nav.config().vision, setup.vision);
     }
 }

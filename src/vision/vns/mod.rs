@@ -46,10 +46,10 @@ use nalgebra::{Isometry3, Vector2};
 
 use super::camera::Camera;
 use super::features::{DetectorConfig, FeatureDetector, FeatureError};
-use super::homography::HomographyConfig;
+use super::homography::{HomographyConfig, HomographyError};
 use super::map::{Map, PointId};
 use super::pose_opt::PoseOptConfig;
-use super::pyramid::{Pyramid, PyramidError};
+use super::pyramid::{PYRAMID_LEVELS, Pyramid, PyramidError};
 use super::sparse_align::SparseAlignConfig;
 use crate::sensors::Frame;
 use aiding::AidingState;
@@ -58,51 +58,63 @@ use init::InitTracks;
 use mapping::LiveSeed;
 use tracking::Attempt;
 
-/// Settings of the VNS.
-#[derive(Debug, Clone, PartialEq)]
+/// Settings of the VNS: the `[vision]` table of the navigation settings (`nav::NavConfig`),
+/// recorded in sensor logs; docs/VNS.md "Settings" lists them. A missing key takes its
+/// default; an unknown one is an error. [`VnsConfig::validate`] checks the values.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(default, deny_unknown_fields)]
 pub struct VnsConfig {
-    /// Feature detection.
+    /// Feature detection (`[vision.detector]`).
     pub detector: DetectorConfig,
-    /// Sparse image alignment.
+    /// Sparse image alignment (`[vision.sparse_align]`).
     pub sparse_align: SparseAlignConfig,
-    /// Pose optimisation.
+    /// Pose optimisation (`[vision.pose]`).
     pub pose: PoseOptConfig,
-    /// Two-view initialisation.
+    /// Two-view initialisation (`[vision.homography]`).
     pub homography: HomographyConfig,
-    /// Largest number of keyframes kept (the furthest is dropped beyond it).
+    /// Largest number of keyframes kept, a count (at least 2, the initialisation's): beyond
+    /// it the keyframe furthest from the camera is dropped.
     pub max_keyframes: usize,
-    /// Keyframes whose points are reprojected into a frame (the closest overlapping ones).
+    /// Keyframes whose points are reprojected into a frame, a count (the closest overlapping
+    /// ones; also those the keyframe selection compares against).
     pub reprojection_keyframes: usize,
-    /// Matches per frame at most (SVO `max_fts`).
+    /// Matches per frame at most, a count (SVO `max_fts`).
     pub max_matches: usize,
-    /// Fewer matches or inliers than this is a tracking failure (SVO `quality_min_fts`).
+    /// Fewer matches or inliers than this is a tracking failure, a count (SVO
+    /// `quality_min_fts`; at most `max_matches`).
     pub min_matches: usize,
-    /// A drop of more inliers than this from the previous frame is a tracking failure (SVO
-    /// `quality_max_drop_fts`).
+    /// A drop of more inliers than this from the previous frame is a tracking failure, a count
+    /// (SVO `quality_max_drop_fts`).
     pub max_match_drop: usize,
-    /// Keyframe distance over the median depth (SVO `kfselect_mindist`).
+    /// Keyframe distance as a fraction of the median scene depth, dimensionless (SVO
+    /// `kfselect_mindist`): a frame becomes a keyframe unless an overlapping keyframe lies
+    /// within (1, 0.8, 1.3) × this × the median depth along the camera's axes.
     pub keyframe_min_distance: f64,
-    /// Points refined per frame by structure optimisation.
+    /// Matched points refined per frame by structure optimisation, a count (the least
+    /// recently refined first).
     pub structure_points: usize,
-    /// Gauss-Newton iterations per refined point.
+    /// Gauss-Newton iterations per refined point, a count.
     pub structure_iterations: u32,
-    /// Median feature displacement that triggers the two-view initialisation, px.
+    /// Median feature displacement since the first image that triggers the two-view
+    /// initialisation, px.
     pub init_min_disparity_px: f64,
-    /// Fewer tracked features than this restarts the initialisation.
+    /// Fewer features still tracked than this restarts the initialisation, a count.
     pub init_min_tracked: usize,
-    /// Features needed in the first image of an initialisation.
+    /// Features needed in the first image of an initialisation, a count (an image with fewer
+    /// is skipped).
     pub init_min_features: usize,
-    /// Grid cell of the first image's detection, px (finer than tracking's: the homography
-    /// and the first map want many points).
+    /// Grid cell of the first image's detection, level-0 px (8–1024; finer than tracking's:
+    /// the homography and the first map want many points).
     pub init_cell_size_px: u32,
-    /// Features sparse alignment must use for a relocalisation attempt to go on.
+    /// Features sparse alignment must use for a relocalisation attempt to go on, a count.
     pub relocalise_min_tracked: usize,
-    /// Seeds live for this many keyframes.
+    /// Seeds (depth filters) live for this many keyframes, a count (at least 1).
     pub seed_keyframes: u64,
-    /// Projections closer than this to the image border are not matched, px.
+    /// Projections closer than this to the image border are not matched, level-0 px.
     pub reprojection_border_px: f64,
-    /// A keyframe observation is a reference for matching only within this viewing-angle
-    /// cosine of the current view (SVO: 0.5, 60°).
+    /// A keyframe observation is a reference for matching only if the cosine of the angle
+    /// between its viewing direction and the current one is at least this, dimensionless in
+    /// [−1, 1] (SVO: 0.5, i.e. within 60°).
     pub min_view_cos: f64,
     /// The IA-VNS's changes (all off: the VNS).
     pub aiding: AidingConfig,
@@ -136,10 +148,160 @@ impl Default for VnsConfig {
     }
 }
 
+/// Why VNS settings are invalid.
+#[derive(Debug, Clone, PartialEq, thiserror::Error)]
+pub enum VnsConfigError {
+    /// A setting is outside its domain.
+    #[error("invalid setting vision.{key} = {value}: {reason}")]
+    Invalid {
+        /// Its TOML key under `vision.`.
+        key: String,
+        /// The rejected value.
+        value: String,
+        /// What it must satisfy.
+        reason: String,
+    },
+    /// The settings have no TOML form, so a sensor log could not record them.
+    #[error("vision settings: no TOML form ({0}): integers must be at most 2⁶³ − 1")]
+    NotToml(String),
+}
+
+fn invalid(key: &str, value: impl std::fmt::Display, reason: &str) -> VnsConfigError {
+    VnsConfigError::Invalid {
+        key: key.to_owned(),
+        value: value.to_string(),
+        reason: reason.to_owned(),
+    }
+}
+
+impl VnsConfig {
+    /// Check every setting the VNS would otherwise fail on, per frame or by a panic: values
+    /// outside their domain, non-finite numbers, sizes of zero, crossed level bounds.
+    pub fn validate(&self) -> Result<(), VnsConfigError> {
+        self.detector.validate().map_err(|e| {
+            let field = match &e {
+                FeatureError::InvalidConfig { field, .. } => field,
+                _ => "",
+            };
+            detector_error(&format!("detector.{field}"), e)
+        })?;
+        // The initialisation's detector differs only in its cell size.
+        DetectorConfig {
+            cell_size_px: self.init_cell_size_px,
+            ..self.detector
+        }
+        .validate()
+        .map_err(|e| detector_error("init_cell_size_px", e))?;
+
+        let sa = &self.sparse_align;
+        if sa.max_level >= PYRAMID_LEVELS {
+            return Err(invalid(
+                "sparse_align.max_level",
+                sa.max_level,
+                "must be at most 4, the pyramid's coarsest level",
+            ));
+        }
+        if sa.min_level > sa.max_level {
+            return Err(invalid(
+                "sparse_align.min_level",
+                sa.min_level,
+                "must not exceed sparse_align.max_level",
+            ));
+        }
+        non_negative("sparse_align.min_step", sa.min_step)?;
+
+        let pose = &self.pose;
+        positive("pose.tukey_k", pose.tukey_k)?;
+        positive("pose.fixed_scale_px", pose.fixed_scale_px)?;
+        non_negative("pose.min_cost_decrease_px", pose.min_cost_decrease_px)?;
+        non_negative("pose.min_step", pose.min_step)?;
+        positive("pose.outlier_threshold_px", pose.outlier_threshold_px)?;
+
+        self.homography.validate().map_err(|e| match e {
+            HomographyError::Invalid {
+                field,
+                value,
+                reason,
+            } => invalid(&format!("homography.{field}"), value, reason),
+            other => invalid("homography", "", &other.to_string()),
+        })?;
+        if i64::try_from(self.homography.seed).is_err() {
+            return Err(invalid(
+                "homography.seed",
+                self.homography.seed,
+                "must be at most 2⁶³ − 1, the largest TOML integer",
+            ));
+        }
+
+        if self.max_keyframes < 2 {
+            return Err(invalid(
+                "max_keyframes",
+                self.max_keyframes,
+                "must be at least 2 (the initialisation makes two keyframes)",
+            ));
+        }
+        if self.reprojection_keyframes == 0 {
+            return Err(invalid("reprojection_keyframes", 0, "must be at least 1"));
+        }
+        if self.max_matches == 0 {
+            return Err(invalid("max_matches", 0, "must be at least 1"));
+        }
+        if self.min_matches > self.max_matches {
+            return Err(invalid(
+                "min_matches",
+                self.min_matches,
+                "must not exceed max_matches (no frame could track)",
+            ));
+        }
+        non_negative("keyframe_min_distance", self.keyframe_min_distance)?;
+        non_negative("init_min_disparity_px", self.init_min_disparity_px)?;
+        if self.seed_keyframes == 0 {
+            return Err(invalid("seed_keyframes", 0, "must be at least 1"));
+        }
+        non_negative("reprojection_border_px", self.reprojection_border_px)?;
+        if !(-1.0..=1.0).contains(&self.min_view_cos) {
+            return Err(invalid(
+                "min_view_cos",
+                self.min_view_cos,
+                "must be a cosine, −1 to 1",
+            ));
+        }
+        // Sensor logs record the settings as TOML, whose integers end at i64::MAX.
+        toml::Value::try_from(self).map_err(|e| VnsConfigError::NotToml(e.to_string()))?;
+        Ok(())
+    }
+}
+
+fn detector_error(key: &str, e: FeatureError) -> VnsConfigError {
+    match e {
+        FeatureError::InvalidConfig { value, reason, .. } => invalid(key, value, reason),
+        other => invalid(key, "", &other.to_string()),
+    }
+}
+
+fn positive(key: &str, value: f64) -> Result<(), VnsConfigError> {
+    if value.is_finite() && value > 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(key, value, "must be finite and positive"))
+    }
+}
+
+fn non_negative(key: &str, value: f64) -> Result<(), VnsConfigError> {
+    if value.is_finite() && value >= 0.0 {
+        Ok(())
+    } else {
+        Err(invalid(key, value, "must be finite and ≥ 0"))
+    }
+}
+
 /// Why the VNS could not be built or a frame not used.
 #[derive(Debug, Clone, PartialEq, thiserror::Error)]
 pub enum VnsError {
-    /// The detector settings are invalid.
+    /// The settings are invalid.
+    #[error("vns: {0}")]
+    Config(#[from] VnsConfigError),
+    /// The detector does not fit the camera.
     #[error("vns: {0}")]
     Detector(#[from] FeatureError),
     /// The frame does not fit the camera (size, buffer).
@@ -274,6 +436,7 @@ pub struct Vns {
 impl Vns {
     /// A VNS for `camera`; `seed` fixes the order in which grid cells are matched.
     pub fn new(camera: Camera, cfg: VnsConfig, seed: u64) -> Result<Self, VnsError> {
+        cfg.validate()?;
         let detector = FeatureDetector::new(cfg.detector, &camera)?;
         let init_detector = FeatureDetector::new(
             DetectorConfig {
@@ -340,6 +503,11 @@ impl Vns {
     /// The camera.
     pub fn camera(&self) -> &Camera {
         &self.camera
+    }
+
+    /// The settings.
+    pub fn config(&self) -> &VnsConfig {
+        &self.cfg
     }
 
     /// Process one frame. `start` is the initial estimate at this frame's time; it is used only

@@ -180,3 +180,68 @@ fn a_lost_track_is_counted_and_relocalised_and_bad_frames_rejected() {
     assert_eq!(vns.counters().bad_frames, 3);
     assert_eq!(vns.state(), VnsState::Tracking);
 }
+
+#[test]
+fn the_settings_read_from_toml_with_defaults_and_refuse_unknown_keys() {
+    let default = VnsConfig::default();
+    assert_eq!(default.validate(), Ok(()));
+    let text = toml::to_string(&default).unwrap();
+    assert_eq!(toml::from_str::<VnsConfig>(&text).unwrap(), default);
+    assert_eq!(toml::from_str::<VnsConfig>("").unwrap(), default);
+    let partial: VnsConfig =
+        toml::from_str("max_keyframes = 20\n[pose]\nmax_iterations = 5\n").unwrap();
+    let mut expected = default.clone();
+    expected.max_keyframes = 20;
+    expected.pose.max_iterations = 5;
+    assert_eq!(partial, expected);
+    for unknown in [
+        "no_such_key = 1",
+        "[pose]\nno_such_key = 1",
+        "[detector]\nno_such_key = 1",
+        "[sparse_align]\nno_such_key = 1",
+        "[homography]\nno_such_key = 1",
+    ] {
+        assert!(toml::from_str::<VnsConfig>(unknown).is_err(), "{unknown}");
+    }
+}
+
+#[test]
+fn invalid_settings_are_refused_with_their_key() {
+    type Spoil = fn(&mut VnsConfig);
+    let cases: [(&str, Spoil); 9] = [
+        ("init_cell_size_px", |c| c.init_cell_size_px = 4),
+        ("detector.n_levels", |c| c.detector.n_levels = 0),
+        ("sparse_align.max_level", |c| c.sparse_align.max_level = 5),
+        ("pose.fixed_scale_px", |c| c.pose.fixed_scale_px = 0.0),
+        ("pose.min_step", |c| c.pose.min_step = f64::INFINITY),
+        ("homography.confidence", |c| c.homography.confidence = 1.0),
+        ("homography.seed", |c| c.homography.seed = u64::MAX),
+        ("min_matches", |c| c.min_matches = c.max_matches + 1),
+        ("min_view_cos", |c| c.min_view_cos = 2.0),
+    ];
+    for (key, spoil) in cases {
+        let mut cfg = VnsConfig::default();
+        spoil(&mut cfg);
+        let err = cfg.validate().unwrap_err();
+        assert!(
+            matches!(&err, VnsConfigError::Invalid { key: k, .. } if k == key),
+            "{key}: {err}"
+        );
+        assert!(matches!(
+            Vns::new(camera(384, 512), cfg, 7),
+            Err(VnsError::Config(_))
+        ));
+    }
+    // A count no TOML integer can hold would leave a sensor log without its settings.
+    let cfg = VnsConfig {
+        max_keyframes: usize::MAX,
+        ..VnsConfig::default()
+    };
+    assert!(matches!(cfg.validate(), Err(VnsConfigError::NotToml(_))));
+}
+
+#[test]
+fn the_shipped_settings_file_holds_the_defaults() {
+    let cfg: VnsConfig = toml::from_str(include_str!("../../../config/vision.toml")).unwrap();
+    assert_eq!(cfg, VnsConfig::default());
+}
