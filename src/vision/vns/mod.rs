@@ -266,6 +266,19 @@ impl VnsConfig {
                 "must be a cosine, −1 to 1",
             ));
         }
+        self.aiding
+            .activation
+            .validate()
+            .map_err(|e| invalid("aiding.activation", "", &e.to_string()))?;
+        if !(self.aiding.prior.min_attitude_error_rad.is_finite()
+            && self.aiding.prior.min_attitude_error_rad >= 0.0)
+        {
+            return Err(invalid(
+                "aiding.prior.min_attitude_error_rad",
+                self.aiding.prior.min_attitude_error_rad,
+                "must be finite and ≥ 0",
+            ));
+        }
         // Sensor logs record the settings as TOML, whose integers end at i64::MAX.
         toml::Value::try_from(self).map_err(|e| VnsConfigError::NotToml(e.to_string()))?;
         Ok(())
@@ -503,11 +516,6 @@ impl Vns {
     /// The camera.
     pub fn camera(&self) -> &Camera {
         &self.camera
-    }
-
-    /// The settings.
-    pub fn config(&self) -> &VnsConfig {
-        &self.cfg
     }
 
     /// Process one frame. `start` is the initial estimate at this frame's time; it is used only
