@@ -41,6 +41,9 @@ pub struct AidingConfig {
     pub inertial_prediction: bool,
     /// The current frame's observations join structure optimisation.
     pub current_features_in_structure: bool,
+    /// The two-view initialisation takes its scale from the INS distance between its two
+    /// images and its path angle from the INS motion, not from the height over the terrain.
+    pub inertial_initialisation: bool,
     /// The PI-inspired activation (the paper's settings table).
     pub activation: ActivationConfig,
     /// The prior-based pose optimisation.
@@ -54,13 +57,19 @@ impl AidingConfig {
             priors: true,
             inertial_prediction: true,
             current_features_in_structure: true,
+            inertial_initialisation: true,
             ..Self::default()
         }
     }
 
     /// Whether any change needs the INS at each frame.
     pub fn needs_ins(&self) -> bool {
-        self.priors || self.inertial_prediction
+        self.priors || self.inertial_prediction || self.inertial_initialisation
+    }
+
+    /// Whether any change is switched on (otherwise the VNS).
+    pub fn any(&self) -> bool {
+        self.needs_ins() || self.current_features_in_structure
     }
 }
 
@@ -115,6 +124,40 @@ impl AidingState {
             last_adjustment: None,
         })
     }
+}
+
+/// The height over the terrain that gives the two-view reconstruction the INS's scale: the
+/// homography's translation is proportional to the height it was scaled with, so the height
+/// `h · ‖T_INS‖ / ‖t_h‖` makes the distance between the two camera centres the INS's
+/// (`d = ‖T_INS‖ / ‖t/d‖`). `None` when either distance is not positive and finite.
+pub(super) fn inertial_height_m(h_used_m: f64, t_visual_m: f64, t_ins_m: f64) -> Option<f64> {
+    let h = h_used_m * t_ins_m / t_visual_m;
+    (h.is_finite() && h > 0.0 && t_ins_m > 0.0).then_some(h)
+}
+
+/// The rotation (Earth frame) that gives the visual motion `visual_e` between the two
+/// initialisation images the INS motion's path angle while keeping its own track direction:
+/// the smallest rotation from `visual_e` to the direction with the visual track and the INS
+/// flight-path angle, both in the NED frame `q_en`.
+pub(super) fn path_angle_rotation(
+    visual_e: &nalgebra::Vector3<f64>,
+    ins_e: &nalgebra::Vector3<f64>,
+    q_en: &UnitQuaternion<f64>,
+) -> Option<UnitQuaternion<f64>> {
+    let a = q_en.inverse() * visual_e;
+    let b = q_en.inverse() * ins_e;
+    let (a_h, b_h) = (a.x.hypot(a.y), b.x.hypot(b.y));
+    if !(a_h > 0.0 && b_h > 0.0 && a.norm().is_finite() && b.norm().is_finite()) {
+        return None;
+    }
+    let gamma_ins = (-b.z).atan2(b_h);
+    let target = nalgebra::Vector3::new(
+        gamma_ins.cos() * a.x / a_h,
+        gamma_ins.cos() * a.y / a_h,
+        -gamma_ins.sin(),
+    );
+    let r_n = UnitQuaternion::rotation_between(&a.normalize(), &target)?;
+    Some(q_en * r_n * q_en.inverse())
 }
 
 /// `a − b` wrapped to (−π, π].
@@ -254,7 +297,7 @@ mod tests {
     use crate::math::wgs84;
     use crate::vision::test_scene::Ground;
     use crate::vision::vns::tests::{pose_at, small_vns, start_at, zeta_ew};
-    use crate::vision::vns::{VnsConfig, VnsOutput, VnsState};
+    use crate::vision::vns::{VnsConfig, VnsOutput, VnsStart, VnsState};
 
     /// The INS at scene frame `k`: the true body pose (the camera is the body here,
     /// `zeta_bc` = identity) with its altitude moved by `dh_m`.
@@ -272,6 +315,16 @@ mod tests {
     /// Fly `frames` frames of the straight scene flight with `aiding`, the INS `dh_m` off in
     /// altitude; every output and the VNS.
     fn fly(aiding: AidingConfig, frames: u64, dh_m: f64) -> (Vec<VnsOutput>, Vns) {
+        fly_from(aiding, frames, dh_m, 1_000.0)
+    }
+
+    /// [`fly`] with the height over the terrain in `x̊₀` given (the truth is 1,000 m).
+    fn fly_from(
+        aiding: AidingConfig,
+        frames: u64,
+        dh_m: f64,
+        h_agl_m: f64,
+    ) -> (Vec<VnsOutput>, Vns) {
         let (cam, vns) = small_vns();
         let cfg = VnsConfig {
             aiding,
@@ -288,9 +341,11 @@ mod tests {
             let pose_w = pose_at(k);
             let frame = ground.frame(&cam, &pose_w, 1_000_000 + k * 100_000);
             let ins = ins_at(k, dh_m);
-            let out = vns
-                .process(&frame, Some(&start_at(&zeta_ew, &pose_w)), Some(&ins))
-                .unwrap();
+            let start = VnsStart {
+                h_agl_m,
+                ..start_at(&zeta_ew, &pose_w)
+            };
+            let out = vns.process(&frame, Some(&start), Some(&ins)).unwrap();
             outputs.extend(out);
         }
         (outputs, vns)
@@ -401,6 +456,64 @@ mod tests {
             dpitch_deg < -0.01 * most && dpitch_deg > -1.5 * most,
             "pitch {dpitch_deg}° apart over {} active images",
             c.priors_active
+        );
+    }
+
+    /// A height over the terrain 20 % high scales the VNS's whole reconstruction, and so its
+    /// distance flown, by 1.2 (≈ 20 % of the distance in position error); the IA-VNS takes the
+    /// scale from the INS distance between the two initialisation images and keeps the VNS
+    /// test's tolerance (1 % of the distance plus 2 m). The path angle is the INS's too.
+    #[test]
+    fn the_inertial_initialisation_takes_the_scale_from_the_ins_distance() {
+        let only_init = AidingConfig {
+            inertial_initialisation: true,
+            ..AidingConfig::default()
+        };
+        let frames = 80;
+        let error_at_end = |aiding| {
+            let (outputs, _) = fly_from(aiding, frames, 0.0, 1_200.0);
+            let o = outputs.last().unwrap();
+            let k = (o.t_us - 1_000_000) / 100_000;
+            let truth = zeta_ew() * pose_at(k);
+            let travelled = (pose_at(k).translation.vector - pose_at(0).translation.vector).norm();
+            let err_m = (o.zeta_ec.translation.vector - truth.translation.vector).norm();
+            (err_m, travelled)
+        };
+        let (vns_m, travelled) = error_at_end(AidingConfig::default());
+        let (iavns_m, _) = error_at_end(only_init);
+        eprintln!("after {travelled:.0} m: VNS {vns_m:.1} m, IA-VNS {iavns_m:.1} m");
+        assert!(vns_m > 0.1 * travelled, "VNS {vns_m} m after {travelled} m");
+        assert!(
+            iavns_m < 0.01 * travelled + 2.0,
+            "IA-VNS {iavns_m} m after {travelled} m"
+        );
+    }
+
+    /// The scale and path-angle helpers on hand-computed cases.
+    #[test]
+    fn the_inertial_scale_and_path_angle_are_the_ins_motions() {
+        assert_eq!(
+            inertial_height_m(1_000.0, 60.0, 50.0),
+            Some(1_000.0 * 50.0 / 60.0)
+        );
+        assert_eq!(inertial_height_m(1_000.0, 60.0, 0.0), None);
+        assert_eq!(inertial_height_m(1_000.0, 0.0, 10.0), None);
+        // NED = Earth here (q_en = identity): visual motion north and 2° down, INS motion
+        // east and 1° up: the result keeps the northward track and takes +1°.
+        let visual =
+            nalgebra::Vector3::new(2.0_f64.to_radians().cos(), 0.0, 2.0_f64.to_radians().sin());
+        let ins =
+            nalgebra::Vector3::new(0.0, 1.0_f64.to_radians().cos(), -1.0_f64.to_radians().sin());
+        let r = path_angle_rotation(&visual, &ins, &UnitQuaternion::identity()).unwrap();
+        let moved = r * visual;
+        let expected =
+            nalgebra::Vector3::new(1.0_f64.to_radians().cos(), 0.0, -1.0_f64.to_radians().sin());
+        assert!((moved - expected).amax() < 1e-12, "{moved:?}");
+        // A 3° rotation about the east axis (the pitch change).
+        assert!((r.angle().to_degrees() - 3.0).abs() < 1e-9);
+        assert!(
+            path_angle_rotation(&nalgebra::Vector3::z(), &ins, &UnitQuaternion::identity())
+                .is_none()
         );
     }
 

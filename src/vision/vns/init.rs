@@ -8,12 +8,13 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Unit, Vector2, Vector3};
+use nalgebra::{Isometry3, Translation3, Unit, Vector2, Vector3};
 
-use super::{LastFrame, Vns, VnsOutput, VnsStart, VnsState};
+use super::aiding::{inertial_height_m, path_angle_rotation};
+use super::{InertialFrame, LastFrame, Vns, VnsOutput, VnsStart, VnsState};
 use crate::math::stats::median;
 use crate::math::{se3, wgs84};
-use crate::vision::homography::{UnitPlaneMatch, initialise_two_view};
+use crate::vision::homography::{UnitPlaneMatch, initialise_two_view, triangulate_metric};
 use crate::vision::klt::KltFeature;
 use crate::vision::map::{Keyframe, KeyframeFeature, Observation, PointKind};
 use crate::vision::pyramid::Pyramid;
@@ -70,6 +71,7 @@ impl Vns {
         t_us: u64,
         pyramid: Arc<Pyramid>,
         start: Option<&VnsStart>,
+        ins: Option<&InertialFrame>,
     ) -> Option<VnsOutput> {
         let Some(mut init) = self.init.take() else {
             if let Some(start) = start {
@@ -130,7 +132,46 @@ impl Vns {
             self.init = Some(init);
             return None;
         };
-        let metric = &two_view.metric;
+        // The IA-VNS: scale from the INS distance between the two images, path angle from
+        // the INS motion (docs/IAVNS.md, "Initialisation").
+        let inertial = ins
+            .filter(|_| self.cfg.aiding.inertial_initialisation)
+            .and_then(|ins| {
+                let c2_ins = (ins.zeta_eb * ins.zeta_bc).translation.vector;
+                let t_ins_e = c2_ins - zeta_ec1.translation.vector;
+                let h = inertial_height_m(
+                    init.start.h_agl_m,
+                    two_view.metric.zeta_c2c1.translation.vector.norm(),
+                    t_ins_e.norm(),
+                )?;
+                let metric = triangulate_metric(
+                    &matches,
+                    &two_view.selection.chosen,
+                    h,
+                    self.camera.f_px(),
+                    &self.cfg.homography,
+                )
+                .ok()?;
+                let visual_e = zeta_ec1.rotation * metric.zeta_c2c1.inverse().translation.vector;
+                let q_en = wgs84::q_en(pos.lat_rad, pos.lon_rad);
+                let rotation = path_angle_rotation(&visual_e, &t_ins_e, &q_en)?;
+                Some((metric, rotation))
+            });
+        let (metric, adjustment) = match inertial {
+            Some((metric, rotation)) => (metric, Some(rotation)),
+            None => (two_view.metric, None),
+        };
+        let metric = &metric;
+        // The path-angle rotation turns the whole reconstruction about the first camera.
+        let c1 = zeta_ec1.translation.vector;
+        let about_c1 = |zeta: Isometry3<f64>| match adjustment {
+            Some(r) => Isometry3::from_parts(
+                Translation3::from(c1 + r * (zeta.translation.vector - c1)),
+                r * zeta.rotation,
+            ),
+            None => zeta,
+        };
+        let zeta_ec1 = se3::renormalized(&about_c1(zeta_ec1));
         let zeta_ec2 = se3::renormalized(&(zeta_ec1 * metric.zeta_c2c1.inverse()));
         // Keyframes 1 and 2 with the triangulated points.
         let mut f1 = Vec::with_capacity(metric.points.len());

@@ -459,9 +459,7 @@ impl Vns {
             &camera,
         )?;
         let a = &cfg.aiding;
-        let aiding = (a.priors || a.inertial_prediction || a.current_features_in_structure)
-            .then(|| AidingState::new(a))
-            .transpose()?;
+        let aiding = a.any().then(|| AidingState::new(a)).transpose()?;
         let n = detector.grid().n_cells();
         let mut cell_order: Vec<usize> = (0..n).collect();
         // Fisher-Yates with SplitMix64.
@@ -553,7 +551,7 @@ impl Vns {
         self.frame_index += 1;
         match self.state {
             VnsState::WaitingForStart | VnsState::Initialising => {
-                let out = self.initialise(frame.t_us, pyramid, start);
+                let out = self.initialise(frame.t_us, pyramid, start, ins);
                 if self.state == VnsState::Tracking {
                     // The first keyframe's INS pose: the next frame's prediction starts there.
                     self.remember_ins(ins);
