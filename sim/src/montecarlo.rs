@@ -226,6 +226,22 @@ pub struct VisionRun {
     /// Frames tracked from a second start after sparse alignment's pose failed (written
     /// only when not zero, so run files of flights that never needed it are unchanged).
     pub motion_model_recoveries: u64,
+    /// The IA-VNS's counters when the visual system was the IA-VNS (any of
+    /// `vision.aiding` switched on; absent from the VNS's run files).
+    pub aiding: Option<AidingRun>,
+}
+
+/// What the IA-VNS's steps did over a run (docs/IAVNS.md).
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub struct AidingRun {
+    /// Frames started from the inertial prediction.
+    pub inertial_starts: u64,
+    /// Of those, frames that did not track from it.
+    pub inertial_start_failures: u64,
+    /// Frames with an active prior.
+    pub priors_active: u64,
+    /// Active frames whose joint optimisation was not kept.
+    pub joint_failures: u64,
 }
 
 /// One run of a batch: the content of a run file.
@@ -304,6 +320,17 @@ impl RunRecord {
                             "# vision_motion_model_recoveries = {}",
                             v.motion_model_recoveries
                         );
+                    }
+                    if let Some(a) = &v.aiding {
+                        let _ = writeln!(t, "# vision_system = ia-vns");
+                        let _ = writeln!(t, "# aiding_inertial_starts = {}", a.inertial_starts);
+                        let _ = writeln!(
+                            t,
+                            "# aiding_inertial_start_failures = {}",
+                            a.inertial_start_failures
+                        );
+                        let _ = writeln!(t, "# aiding_priors_active = {}", a.priors_active);
+                        let _ = writeln!(t, "# aiding_joint_failures = {}", a.joint_failures);
                     }
                 }
                 let _ = writeln!(t, "{RUN_COLUMNS}");
@@ -422,6 +449,16 @@ impl RunRecord {
                         } else {
                             0
                         },
+                        aiding: if get("vision_system").is_ok() {
+                            Some(AidingRun {
+                                inertial_starts: count("aiding_inertial_starts")?,
+                                inertial_start_failures: count("aiding_inertial_start_failures")?,
+                                priors_active: count("aiding_priors_active")?,
+                                joint_failures: count("aiding_joint_failures")?,
+                            })
+                        } else {
+                            None
+                        },
                     }),
                     None => None,
                 };
@@ -489,6 +526,15 @@ pub fn fly(scenario: u8, setup: &FlightSetup, seed: u64) -> RunRecord {
                 tracking_losses: c.tracking_losses,
                 relocalisations: c.relocalisations,
                 motion_model_recoveries: c.motion_model_recoveries,
+                aiding: flight
+                    .navigator()
+                    .and_then(|n| n.aiding_counters())
+                    .map(|a| AidingRun {
+                        inertial_starts: a.inertial_starts,
+                        inertial_start_failures: a.inertial_start_failures,
+                        priors_active: a.priors_active,
+                        joint_failures: a.joint_failures,
+                    }),
             });
         Ok::<_, crate::flight::FlightError>((summary.distance_m, recorder.finish(), vision))
     }));
@@ -849,6 +895,12 @@ mod tests {
                     tracking_losses: 3,
                     relocalisations: 2,
                     motion_model_recoveries: 4,
+                    aiding: Some(AidingRun {
+                        inertial_starts: 4_990,
+                        inertial_start_failures: 3,
+                        priors_active: 120,
+                        joint_failures: 1,
+                    }),
                 }),
             },
             ..record
@@ -856,6 +908,16 @@ mod tests {
         let text = with_vision.to_text();
         let back = RunRecord::parse(&text).unwrap();
         assert_eq!(back.to_text(), text);
+        let RunOutcome::Completed {
+            vision: Some(VisionRun {
+                aiding: Some(a), ..
+            }),
+            ..
+        } = &back.outcome
+        else {
+            panic!("the IA-VNS's counters did not come back")
+        };
+        assert_eq!((a.inertial_starts, a.priors_active), (4_990, 120));
         let RunOutcome::Completed {
             samples,
             vision: Some(v),

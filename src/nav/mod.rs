@@ -389,6 +389,11 @@ impl Navigator {
         self.vns.as_ref().map(|(v, _)| v.counters())
     }
 
+    /// Counters of the IA-VNS's steps (with a camera and any of them switched on).
+    pub fn aiding_counters(&self) -> Option<&crate::vision::vns::AidingCounters> {
+        self.vns.as_ref().and_then(|(v, _)| v.aiding_counters())
+    }
+
     fn start_at(&mut self, record: StartRecord, init: &InsInit) {
         if self.initialise(init).is_err() {
             self.stats.starts_refused += 1;
