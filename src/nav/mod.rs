@@ -336,12 +336,14 @@ impl Navigator {
             return None;
         }
         let pose = self.history.at(t_us)?;
-        let q_eb = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad) * pose.q_nb;
+        let q_en = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad);
         Some(InertialFrame {
+            t_us,
             zeta_eb: Isometry3::from_parts(
                 nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
-                q_eb,
+                q_en * pose.q_nb,
             ),
+            v_e_mps: q_en * pose.v_ned_mps,
             q_nb: pose.q_nb,
             h_m: pose.pos.h_m,
             zeta_bc: *zeta_bc,

@@ -76,8 +76,14 @@ impl AidingConfig {
 /// The INS at a frame's exposure, as the IA-VNS reads it.
 #[derive(Debug, Clone, Copy, PartialEq)]
 pub struct InertialFrame {
+    /// The frame's exposure time, µs.
+    pub t_us: u64,
     /// The INS body pose (body → Earth).
     pub zeta_eb: Isometry3<f64>,
+    /// The INS ground velocity, Earth axes, m/s. Motions between frames are integrated from
+    /// it: while GNSS is available the INS position follows each fix's noise (metres), its
+    /// velocity does not.
+    pub v_e_mps: nalgebra::Vector3<f64>,
     /// The INS body attitude `q_nb`.
     pub q_nb: UnitQuaternion<f64>,
     /// The INS altitude above the ellipsoid, m.
@@ -108,8 +114,8 @@ pub struct AidingCounters {
 #[derive(Debug, Clone)]
 pub(super) struct AidingState {
     pub(super) activation: Activation,
-    /// The INS body pose at the last tracked frame (the inertial prediction's origin).
-    pub(super) last_ins_zeta_eb: Option<Isometry3<f64>>,
+    /// The INS at the last tracked frame (the inertial prediction's origin).
+    pub(super) last_ins: Option<InertialFrame>,
     pub(super) counters: AidingCounters,
     /// The latest adjustment (for logs and outputs).
     pub(super) last_adjustment: Option<Adjustment>,
@@ -119,11 +125,36 @@ impl AidingState {
     pub(super) fn new(cfg: &AidingConfig) -> Result<Self, ActivationError> {
         Ok(Self {
             activation: Activation::new(cfg.activation)?,
-            last_ins_zeta_eb: None,
+            last_ins: None,
             counters: AidingCounters::default(),
             last_adjustment: None,
         })
     }
+}
+
+/// The INS displacement from `from` to `to`, Earth axes, m: the trapezoidal integral of its
+/// ground velocity (`None` for a time that does not increase or a non-finite velocity).
+pub(super) fn inertial_displacement_e(
+    from: &InertialFrame,
+    to: &InertialFrame,
+) -> Option<nalgebra::Vector3<f64>> {
+    let dt_s = to.t_us.checked_sub(from.t_us)? as f64 * 1e-6;
+    let d = (from.v_e_mps + to.v_e_mps) * (0.5 * dt_s);
+    (dt_s > 0.0 && d.iter().all(|x| x.is_finite())).then_some(d)
+}
+
+/// The INS body motion from `from` to `to` in `from`'s body axes: the rotation between the
+/// two attitudes and the integrated velocity ([`inertial_displacement_e`]).
+pub(super) fn inertial_motion_b(
+    from: &InertialFrame,
+    to: &InertialFrame,
+) -> Option<Isometry3<f64>> {
+    let d_e = inertial_displacement_e(from, to)?;
+    let to_e = Isometry3::from_parts(
+        nalgebra::Translation3::from(from.zeta_eb.translation.vector + d_e),
+        to.zeta_eb.rotation,
+    );
+    Some(from.zeta_eb.inverse() * to_e)
 }
 
 /// The height over the terrain that gives the two-view reconstruction the INS's scale: the
@@ -172,7 +203,7 @@ fn angle_difference(a: f64, b: f64) -> f64 {
 
 impl Vns {
     /// `ζ*`: the previous visual camera pose moved on by the INS body motion since the
-    /// previous tracked frame, `ζ*_ec = ζ°_eb,i−1 ∘ (ζ̂_eb,i−1⁻¹ ζ̂_eb,i) ∘ ζ_bc`.
+    /// previous tracked frame, `ζ*_ec = ζ°_eb,i−1 ∘ Δζ̂_b ∘ ζ_bc` ([`inertial_motion_b`]).
     pub(super) fn inertial_prediction(
         &self,
         last_zeta_ec: &Isometry3<f64>,
@@ -181,8 +212,8 @@ impl Vns {
         if !self.cfg.aiding.inertial_prediction {
             return None;
         }
-        let previous_ins = self.aiding.as_ref()?.last_ins_zeta_eb?;
-        let motion_b = previous_ins.inverse() * ins.zeta_eb;
+        let previous = self.aiding.as_ref()?.last_ins?;
+        let motion_b = inertial_motion_b(&previous, ins)?;
         let visual_eb = last_zeta_ec * ins.zeta_bc.inverse();
         Some(crate::math::se3::renormalized(
             &(visual_eb * motion_b * ins.zeta_bc),
@@ -274,7 +305,7 @@ impl Vns {
     /// Remember the INS pose of a tracked frame (the next prediction's origin).
     pub(super) fn remember_ins(&mut self, ins: Option<&InertialFrame>) {
         if let Some(state) = self.aiding.as_mut() {
-            state.last_ins_zeta_eb = ins.map(|i| i.zeta_eb);
+            state.last_ins = ins.copied();
         }
     }
 
@@ -304,8 +335,12 @@ mod tests {
     fn ins_at(k: u64, dh_m: f64) -> InertialFrame {
         let zeta_eb = zeta_ew() * pose_at(k);
         let pos = wgs84::ecef_to_geodetic(&zeta_eb.translation.vector);
+        // The scene flies 30 m/s along x and 1.5 m/s along y of the local level frame.
+        let v_e_mps = zeta_ew().rotation * nalgebra::Vector3::new(30.0, 1.5, 0.0);
         InertialFrame {
+            t_us: 1_000_000 + k * 100_000,
             zeta_eb,
+            v_e_mps,
             q_nb: wgs84::q_en(pos.lat_rad, pos.lon_rad).inverse() * zeta_eb.rotation,
             h_m: pos.h_m + dh_m,
             zeta_bc: Isometry3::identity(),
@@ -487,6 +522,28 @@ mod tests {
             iavns_m < 0.01 * travelled + 2.0,
             "IA-VNS {iavns_m} m after {travelled} m"
         );
+    }
+
+    /// The INS motion between two frames comes from the integrated velocity, not from the
+    /// positions: a position that jumps by metres at a GNSS fix (here 3 m between the two
+    /// frames) leaves it unchanged.
+    #[test]
+    fn the_inertial_motion_integrates_the_velocity_not_the_position_jumps() {
+        let a = ins_at(10, 0.0);
+        let mut b = ins_at(11, 0.0);
+        b.zeta_eb.translation.vector += nalgebra::Vector3::new(3.0, 0.0, 0.0);
+        b.v_e_mps = a.v_e_mps * 1.1;
+        let m = inertial_motion_b(&a, &b).unwrap();
+        let expected_e = (a.v_e_mps + b.v_e_mps) * 0.05;
+        let got_e = a.zeta_eb.rotation * m.translation.vector;
+        // ECEF coordinates of 6e6 m carry ~1e-9 m of rounding each.
+        assert!((got_e - expected_e).amax() < 1e-6, "{got_e:?}");
+        assert!(
+            m.rotation
+                .angle_to(&(a.zeta_eb.rotation.inverse() * b.zeta_eb.rotation))
+                < 1e-12
+        );
+        assert!(inertial_motion_b(&b, &a).is_none(), "time must increase");
     }
 
     /// The scale and path-angle helpers on hand-computed cases.

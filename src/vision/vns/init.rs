@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use nalgebra::{Isometry3, Translation3, Unit, Vector2, Vector3};
 
-use super::aiding::{inertial_height_m, path_angle_rotation};
+use super::aiding::{inertial_displacement_e, inertial_height_m, path_angle_rotation};
 use super::{InertialFrame, LastFrame, Vns, VnsOutput, VnsStart, VnsState};
 use crate::math::stats::median;
 use crate::math::{se3, wgs84};
@@ -35,10 +35,19 @@ pub(super) struct InitTracks {
     klt: Vec<KltFeature>,
     /// Latest tracked level-0 pixel of each feature (`None`: lost).
     tracked: Vec<Option<Vector2<f64>>>,
+    /// The IA-VNS: the INS displacement since the first image (Earth axes, m) and the INS
+    /// at the latest image; `None` once a frame came without the INS.
+    ins_path: Option<(Vector3<f64>, InertialFrame)>,
 }
 
 impl Vns {
-    fn start_init(&mut self, t_us: u64, pyramid: Arc<Pyramid>, start: &VnsStart) {
+    fn start_init(
+        &mut self,
+        t_us: u64,
+        pyramid: Arc<Pyramid>,
+        start: &VnsStart,
+        ins: Option<&InertialFrame>,
+    ) {
         let occupancy = self.init_detector.empty_occupancy();
         let features = self
             .init_detector
@@ -62,6 +71,7 @@ impl Vns {
             pyramid,
             tracked: features.iter().map(|f| Some(f.0)).collect(),
             features,
+            ins_path: ins.map(|i| (Vector3::zeros(), *i)),
         });
         self.state = VnsState::Initialising;
     }
@@ -75,7 +85,7 @@ impl Vns {
     ) -> Option<VnsOutput> {
         let Some(mut init) = self.init.take() else {
             if let Some(start) = start {
-                self.start_init(t_us, pyramid, start);
+                self.start_init(t_us, pyramid, start, ins);
             }
             return None;
         };
@@ -91,6 +101,9 @@ impl Vns {
                 .filter(|px| self.camera.contains(px, 0.0));
         }
         init.t_us = t_us;
+        init.ins_path = init.ins_path.zip(ins).and_then(|((path, last), now)| {
+            Some((path + inertial_displacement_e(&last, now)?, *now))
+        });
         let pairs: Vec<(Vector2<f64>, Vector2<f64>)> = init
             .features
             .iter()
@@ -102,7 +115,7 @@ impl Vns {
             self.init = None;
             self.state = VnsState::WaitingForStart;
             if let Some(start) = start {
-                self.start_init(t_us, pyramid, start);
+                self.start_init(t_us, pyramid, start, ins);
             }
             return None;
         }
@@ -134,11 +147,16 @@ impl Vns {
         };
         // The IA-VNS: scale from the INS distance between the two images, path angle from
         // the INS motion (docs/IAVNS.md, "Initialisation").
-        let inertial = ins
+        let inertial = init
+            .ins_path
             .filter(|_| self.cfg.aiding.inertial_initialisation)
-            .and_then(|ins| {
-                let c2_ins = (ins.zeta_eb * ins.zeta_bc).translation.vector;
-                let t_ins_e = c2_ins - zeta_ec1.translation.vector;
+            .and_then(|(path_e, ins)| {
+                // The camera's path: the body's plus the lens's turn about the body.
+                let lever_now = ins.zeta_eb.rotation * ins.zeta_bc.translation.vector;
+                let lever_first = init.start.zeta_ec.rotation
+                    * ins.zeta_bc.rotation.inverse()
+                    * ins.zeta_bc.translation.vector;
+                let t_ins_e = path_e + lever_now - lever_first;
                 let h = inertial_height_m(
                     init.start.h_agl_m,
                     two_view.metric.zeta_c2c1.translation.vector.norm(),
