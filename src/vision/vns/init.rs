@@ -8,9 +8,9 @@
 
 use std::sync::Arc;
 
-use nalgebra::{Isometry3, Translation3, Unit, Vector2, Vector3};
+use nalgebra::{Unit, Vector2, Vector3};
 
-use super::aiding::{inertial_displacement_e, inertial_height_m, path_angle_rotation};
+use super::aiding::{inertial_displacement_e, inertial_motion};
 use super::{InertialFrame, LastFrame, Vns, VnsOutput, VnsStart, VnsState};
 use crate::math::stats::median;
 use crate::math::{se3, wgs84};
@@ -145,51 +145,33 @@ impl Vns {
             self.init = Some(init);
             return None;
         };
-        // The IA-VNS: scale from the INS distance between the two images, path angle from
-        // the INS motion (docs/IAVNS.md, "Initialisation").
+        // The IA-VNS: the INS relative pose between the two images (rotation, and translation
+        // integrated from the velocity), which fixes the scale (the height) and the path angle
+        // (docs/IAVNS.md, "Initialisation"); the plane's distance, which the VNS takes from
+        // the height over the terrain, is not needed.
         let inertial = init
             .ins_path
             .filter(|_| self.cfg.aiding.inertial_initialisation)
             .and_then(|(path_e, ins)| {
                 // The camera's path: the body's plus the lens's turn about the body.
                 let lever_now = ins.zeta_eb.rotation * ins.zeta_bc.translation.vector;
-                let lever_first = init.start.zeta_ec.rotation
+                let lever_first = zeta_ec1.rotation
                     * ins.zeta_bc.rotation.inverse()
                     * ins.zeta_bc.translation.vector;
                 let t_ins_e = path_e + lever_now - lever_first;
-                let h = inertial_height_m(
-                    init.start.h_agl_m,
-                    two_view.metric.zeta_c2c1.translation.vector.norm(),
-                    t_ins_e.norm(),
-                )?;
-                let metric = triangulate_metric(
+                let q_ec2 = ins.zeta_eb.rotation * ins.zeta_bc.rotation;
+                let motion =
+                    inertial_motion(&two_view.selection.chosen, &zeta_ec1, &q_ec2, &t_ins_e)?;
+                triangulate_metric(
                     &matches,
-                    &two_view.selection.chosen,
-                    h,
+                    &motion,
+                    1.0,
                     self.camera.f_px(),
                     &self.cfg.homography,
                 )
-                .ok()?;
-                let visual_e = zeta_ec1.rotation * metric.zeta_c2c1.inverse().translation.vector;
-                let q_en = wgs84::q_en(pos.lat_rad, pos.lon_rad);
-                let rotation = path_angle_rotation(&visual_e, &t_ins_e, &q_en)?;
-                Some((metric, rotation))
+                .ok()
             });
-        let (metric, adjustment) = match inertial {
-            Some((metric, rotation)) => (metric, Some(rotation)),
-            None => (two_view.metric, None),
-        };
-        let metric = &metric;
-        // The path-angle rotation turns the whole reconstruction about the first camera.
-        let c1 = zeta_ec1.translation.vector;
-        let about_c1 = |zeta: Isometry3<f64>| match adjustment {
-            Some(r) => Isometry3::from_parts(
-                Translation3::from(c1 + r * (zeta.translation.vector - c1)),
-                r * zeta.rotation,
-            ),
-            None => zeta,
-        };
-        let zeta_ec1 = se3::renormalized(&about_c1(zeta_ec1));
+        let metric = inertial.as_ref().unwrap_or(&two_view.metric);
         let zeta_ec2 = se3::renormalized(&(zeta_ec1 * metric.zeta_c2c1.inverse()));
         // Keyframes 1 and 2 with the triangulated points.
         let mut f1 = Vec::with_capacity(metric.points.len());
