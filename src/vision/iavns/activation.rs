@@ -21,7 +21,7 @@
 //!   pressure-altitude rate: geometric and pressure rates differ by the temperature ratio, which
 //!   in a 1 m/s climb 10 K off standard leaves a spurious ≈ 0.04 m/s, above `ΔROC_LOW`.
 //!
-//! The tests reproduce the hand-computed table of `research/iavns.md` §A.9.7.
+//! The tests reproduce hand-computed cases of these rules (docs/IAVNS.md, "Tests").
 
 use std::collections::VecDeque;
 
