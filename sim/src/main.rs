@@ -66,6 +66,12 @@ struct SetupArgs {
     /// Terrain seed (with --terrain).
     #[arg(long, default_value_t = 0)]
     terrain_seed: u64,
+    /// The visual systems run on the same frames (with --terrain), comma-separated: each is
+    /// `vision.toml`'s settings with the IA-VNS's switches set its way (`config`: as they
+    /// are). The first is the navigator's configured system. The ablation's list is
+    /// `vns,vns+init,vns+prediction,vns+priors,vns+structure,ia-vns,ia-vns-pitch`.
+    #[arg(long, value_enum, value_delimiter = ',', default_value = "vns,ia-vns")]
+    vision_systems: Vec<ianav_sim::flight::systems::VisionSystem>,
 }
 
 /// Navigation source of guidance and control (`--navigation`).

@@ -8,7 +8,7 @@ use ianav::math::{angle, so3, wgs84};
 use ianav::nav::NavSolution;
 
 use crate::control::NavEstimate;
-use crate::flight::{FlightObserver, TruthSample};
+use crate::flight::{FlightObserver, TruthSample, VisionOutput};
 
 /// Mission-time spacing of the metrics samples, s (the paper's post-processing samples the
 /// error histories every 10 s: 381 samples over 3,800 s).
@@ -115,8 +115,8 @@ pub fn nees_horizontal_position(truth: &TruthSample, sol: &NavSolution) -> Optio
 }
 
 /// Observer collecting the NSE at mission times 0, 10, 20, … s (the first output sample at or
-/// after each grid time) and at the end of the flight; with a camera, the VNS's too (NaN
-/// samples where it does not track: before its initialisation, while relocalising).
+/// after each grid time) and at the end of the flight; with a camera, every visual system's
+/// too (NaN samples where it does not track: before its initialisation, while relocalising).
 #[derive(Debug, Clone)]
 pub struct MetricsRecorder {
     samples: Vec<NseSample>,
@@ -124,11 +124,18 @@ pub struct MetricsRecorder {
     next_t_s: f64,
     /// The latest pair seen, kept to record the final instant in [`MetricsRecorder::finish`].
     last: Option<(TruthSample, NavEstimate)>,
-    /// VNS samples on the same grid (empty without a camera).
-    vision_samples: Vec<NseSample>,
-    vision_next_t_s: f64,
-    /// The VNS sample of the latest output (NaN when not tracking).
-    vision_last: Option<NseSample>,
+    /// The visual systems' samples on the same grid (empty without a camera).
+    vision: Vec<VisionTrack>,
+}
+
+/// One visual system's samples.
+#[derive(Debug, Clone)]
+struct VisionTrack {
+    name: &'static str,
+    samples: Vec<NseSample>,
+    next_t_s: f64,
+    /// The sample of the latest output (NaN when not tracking).
+    last: Option<NseSample>,
 }
 
 /// An NSE sample at `t_s` with every error NaN (the estimator had no solution then).
@@ -159,22 +166,26 @@ impl MetricsRecorder {
             samples: Vec::new(),
             next_t_s: 0.0,
             last: None,
-            vision_samples: Vec::new(),
-            vision_next_t_s: 0.0,
-            vision_last: None,
+            vision: Vec::new(),
         }
     }
 
-    /// The VNS samples (empty without a camera), completed like [`MetricsRecorder::finish`].
-    pub fn vision_samples(&self) -> Vec<NseSample> {
-        let mut v = self.vision_samples.clone();
-        if let Some(last) = self.vision_last {
-            let recorded_up_to = v.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
-            if last.t_s >= 0.0 && last.t_s > recorded_up_to + GRID_TOLERANCE_S {
-                v.push(last);
-            }
-        }
-        v
+    /// Each visual system's name and samples, in the flight's order (empty without a camera),
+    /// completed like [`MetricsRecorder::finish`].
+    pub fn vision_samples(&self) -> Vec<(&'static str, Vec<NseSample>)> {
+        self.vision
+            .iter()
+            .map(|track| {
+                let mut v = track.samples.clone();
+                if let Some(last) = track.last {
+                    let recorded_up_to = v.last().map_or(f64::NEG_INFINITY, |s| s.t_s);
+                    if last.t_s >= 0.0 && last.t_s > recorded_up_to + GRID_TOLERANCE_S {
+                        v.push(last);
+                    }
+                }
+                (track.name, v)
+            })
+            .collect()
     }
 
     /// Samples recorded so far (without the final instant unless it fell on the grid).
@@ -207,20 +218,38 @@ impl FlightObserver for MetricsRecorder {
         self.last = Some((*truth, *estimate));
     }
 
-    fn nav_solution(&mut self, truth: &TruthSample, sol: &NavSolution) {
-        if sol.vision.state == ianav::nav::VisionState::Inactive || truth.t_s < 0.0 {
+    fn vision_outputs(&mut self, truth: &TruthSample, t_us: u64, systems: &[VisionOutput]) {
+        if truth.t_s < 0.0 {
             return;
         }
-        let sample = match sol.vision_fix.filter(|f| f.t_us == sol.t_us) {
-            Some(f) => nse_pose(truth, &f.pos, &f.q_nb),
-            None => missing_sample(truth.t_s, truth.distance_m),
-        };
-        if truth.t_s >= self.vision_next_t_s - GRID_TOLERANCE_S {
-            self.vision_samples.push(sample);
-            let k = (truth.t_s / SAMPLE_PERIOD_S + GRID_TOLERANCE_S).floor() + 1.0;
-            self.vision_next_t_s = k * SAMPLE_PERIOD_S;
+        for out in systems {
+            if out.status.state == ianav::nav::VisionState::Inactive {
+                continue;
+            }
+            let track = match self.vision.iter().position(|t| t.name == out.name) {
+                Some(i) => &mut self.vision[i],
+                None => {
+                    self.vision.push(VisionTrack {
+                        name: out.name,
+                        samples: Vec::new(),
+                        next_t_s: 0.0,
+                        last: None,
+                    });
+                    let n = self.vision.len();
+                    &mut self.vision[n - 1]
+                }
+            };
+            let sample = match out.fix.filter(|f| f.t_us == t_us) {
+                Some(f) => nse_pose(truth, &f.pos, &f.q_nb),
+                None => missing_sample(truth.t_s, truth.distance_m),
+            };
+            if truth.t_s >= track.next_t_s - GRID_TOLERANCE_S {
+                track.samples.push(sample);
+                let k = (truth.t_s / SAMPLE_PERIOD_S + GRID_TOLERANCE_S).floor() + 1.0;
+                track.next_t_s = k * SAMPLE_PERIOD_S;
+            }
+            track.last = Some(sample);
         }
-        self.vision_last = Some(sample);
     }
 }
 

@@ -21,14 +21,17 @@ use crate::metrics::{MetricsRecorder, NseSample, format_fixed};
 
 /// Directory of the per-run files inside a batch directory.
 pub const RUNS_DIR: &str = "runs";
-/// First line of every run file (format name and version).
-/// (Read by hand, not with the `csv` crate: the `# key = value` header lines carry the run's
-/// facts, and the rows are plain numbers.)
-pub const RUN_FILE_MAGIC: &str = "# ianav-sim mc run v1";
+/// First line of every run file (format name and version): v2 holds one section per visual
+/// system, each opened by `# system = NAME`; v1 (still read) held at most one, its counters
+/// in the run's header. (Read by hand, not with the `csv` crate: the `# key = value` header
+/// lines carry the run's facts, and the rows are plain numbers.)
+pub const RUN_FILE_MAGIC: &str = "# ianav-sim mc run v2";
+/// First line of the run files written before the visual systems had sections.
+const RUN_FILE_MAGIC_V1: &str = "# ianav-sim mc run v1";
 /// Column line of a completed run's samples.
 pub const RUN_COLUMNS: &str =
     "t_s,yaw_deg,pitch_deg,bank_deg,att_norm_deg,alt_m,hor_m,hor_pct,distance_m";
-/// Column line of a completed run's VNS samples (runs with a camera), after the INS samples.
+/// Column line of a visual system's samples (runs with a camera), after the INS samples.
 pub const RUN_VISION_COLUMNS: &str =
     "vns_t_s,yaw_deg,pitch_deg,bank_deg,att_norm_deg,alt_m,hor_m,hor_pct,distance_m";
 /// Decimals of each column of [`RUN_COLUMNS`]: 1 ms, 1e-6° (far below the 0.01° the tables
@@ -201,8 +204,8 @@ pub enum RunOutcome {
         distance_m: f64,
         /// Errors at 0, 10, 20, … s and at the end.
         samples: Vec<NseSample>,
-        /// The VNS's, with a camera.
-        vision: Option<VisionRun>,
+        /// Each visual system's, with a camera, in the flight's order.
+        vision: Vec<VisionRun>,
     },
     /// The flight could not be set up, departed, or panicked.
     Failed {
@@ -211,10 +214,12 @@ pub enum RunOutcome {
     },
 }
 
-/// The VNS of a run: its errors on the INS's grid (NaN where it did not track) and its
+/// A visual system of a run: its errors on the INS's grid (NaN where it did not track) and its
 /// tracking losses.
 #[derive(Debug, Clone, PartialEq)]
 pub struct VisionRun {
+    /// Its name (`vns`, `ia-vns`, …: `crate::flight::systems::VisionSystem::name`).
+    pub system: String,
     /// Errors at 0, 10, 20, … s and at the end.
     pub samples: Vec<NseSample>,
     /// Successful two-view initialisations.
@@ -223,11 +228,9 @@ pub struct VisionRun {
     pub tracking_losses: u64,
     /// Successful relocalisations.
     pub relocalisations: u64,
-    /// Frames tracked from a second start after sparse alignment's pose failed (written
-    /// only when not zero, so run files of flights that never needed it are unchanged).
+    /// Frames tracked from a second start after sparse alignment's pose failed.
     pub motion_model_recoveries: u64,
-    /// The IA-VNS's counters when the visual system was the IA-VNS (any of
-    /// `vision.aiding` switched on; absent from the VNS's run files).
+    /// The IA-VNS's counters when any of its changes is switched on.
     pub aiding: Option<AidingRun>,
 }
 
@@ -310,113 +313,77 @@ impl RunRecord {
             } => {
                 let _ = writeln!(t, "# status = completed");
                 let _ = writeln!(t, "# distance_m = {}", format_fixed(*distance_m, 3));
-                if let Some(v) = vision {
-                    let _ = writeln!(t, "# vision_initialisations = {}", v.initialisations);
-                    let _ = writeln!(t, "# vision_tracking_losses = {}", v.tracking_losses);
-                    let _ = writeln!(t, "# vision_relocalisations = {}", v.relocalisations);
-                    if v.motion_model_recoveries > 0 {
-                        let _ = writeln!(
-                            t,
-                            "# vision_motion_model_recoveries = {}",
-                            v.motion_model_recoveries
-                        );
-                    }
-                    if let Some(a) = &v.aiding {
-                        let _ = writeln!(t, "# vision_system = ia-vns");
-                        let _ = writeln!(t, "# aiding_inertial_starts = {}", a.inertial_starts);
-                        let _ = writeln!(
-                            t,
-                            "# aiding_inertial_start_failures = {}",
-                            a.inertial_start_failures
-                        );
-                        let _ = writeln!(t, "# aiding_priors_active = {}", a.priors_active);
-                        let _ = writeln!(t, "# aiding_joint_failures = {}", a.joint_failures);
-                    }
-                }
                 let _ = writeln!(t, "{RUN_COLUMNS}");
                 write_samples(&mut t, samples);
-                if let Some(v) = vision {
-                    let _ = writeln!(t, "{RUN_VISION_COLUMNS}");
-                    write_samples(&mut t, &v.samples);
+                for v in vision {
+                    write_vision_section(&mut t, v);
                 }
             }
         }
         t
     }
 
-    /// Parse a run file written by [`RunRecord::to_text`]; the error names the line.
+    /// Parse a run file written by [`RunRecord::to_text`] (or by its v1 form); the error
+    /// names the line.
     pub fn parse(text: &str) -> Result<Self, String> {
         let mut lines = text.lines().enumerate();
-        match lines.next() {
-            Some((_, RUN_FILE_MAGIC)) => {}
+        let v1 = match lines.next() {
+            Some((_, RUN_FILE_MAGIC)) => false,
+            Some((_, RUN_FILE_MAGIC_V1)) => true,
             _ => return Err(format!("line 1: expected `{RUN_FILE_MAGIC}`")),
-        }
+        };
         let mut header: Vec<(String, String)> = Vec::new();
         let mut columns_seen = false;
         let mut samples = Vec::new();
-        let mut vision_samples: Option<Vec<NseSample>> = None;
+        // Each visual system's header lines and samples, in the file's order.
+        let mut sections: Vec<(HeaderLines, Vec<NseSample>)> = Vec::new();
+        // Whether the latest section's column line has been read (its rows follow).
+        let mut in_rows = false;
         for (i, line) in lines {
             let at = |m: &str| format!("line {}: {m}", i + 1);
-            if !columns_seen {
-                if let Some(kv) = line.strip_prefix("# ") {
-                    let (k, v) = kv
-                        .split_once(" = ")
-                        .ok_or_else(|| at("expected `# key = value`"))?;
-                    header.push((k.to_owned(), v.to_owned()));
-                    continue;
+            if let Some(kv) = line.strip_prefix("# ") {
+                let (k, v) = kv
+                    .split_once(" = ")
+                    .ok_or_else(|| at("expected `# key = value`"))?;
+                let kv = (k.to_owned(), v.to_owned());
+                if !columns_seen {
+                    header.push(kv);
+                } else if k == "system" && !v1 {
+                    sections.push((vec![kv], Vec::new()));
+                    in_rows = false;
+                } else {
+                    match sections.last_mut() {
+                        Some((h, _)) if !in_rows => h.push(kv),
+                        _ => return Err(at("a header line outside a `# system` section")),
+                    }
                 }
+                continue;
+            }
+            if !columns_seen {
                 if line != RUN_COLUMNS {
                     return Err(at(&format!("expected the column line `{RUN_COLUMNS}`")));
                 }
                 columns_seen = true;
                 continue;
             }
-            if line == RUN_VISION_COLUMNS && vision_samples.is_none() {
-                vision_samples = Some(Vec::new());
+            if line == RUN_VISION_COLUMNS {
+                if v1 && sections.is_empty() {
+                    // v1's one section: its counters are in the run's header.
+                    sections.push((v1_section_header(&header), Vec::new()));
+                } else if v1 || in_rows || sections.is_empty() {
+                    return Err(at("a vision column line outside a `# system` section"));
+                }
+                in_rows = true;
                 continue;
             }
-            let v: Vec<f64> = line
-                .split(',')
-                .map(f64::from_str)
-                .collect::<Result<_, _>>()
-                .map_err(|e| at(&format!("bad number: {e}")))?;
-            let [
-                t_s,
-                yaw_deg,
-                pitch_deg,
-                bank_deg,
-                att_norm_deg,
-                alt_m,
-                hor_m,
-                hor_pct,
-                distance_m,
-            ] = v[..]
-            else {
-                return Err(at(&format!("expected 9 values, got {}", v.len())));
-            };
-            let target = match vision_samples.as_mut() {
-                Some(v) => v,
-                None => &mut samples,
-            };
-            target.push(NseSample {
-                t_s,
-                yaw_deg,
-                pitch_deg,
-                bank_deg,
-                att_norm_deg,
-                alt_m,
-                hor_m,
-                hor_pct,
-                distance_m,
-            });
+            let sample = parse_sample(line).map_err(|e| at(&e))?;
+            match sections.last_mut() {
+                None => samples.push(sample),
+                Some((_, rows)) if in_rows => rows.push(sample),
+                Some(_) => return Err(at("samples before the section's column line")),
+            }
         }
-        let get = |key: &str| -> Result<&str, String> {
-            header
-                .iter()
-                .find(|(k, _)| k == key)
-                .map(|(_, v)| v.as_str())
-                .ok_or_else(|| format!("header: missing `{key}`"))
-        };
+        let get = |key: &str| find(&header, key);
         let num = |key: &str| -> Result<f64, String> {
             get(key)?
                 .parse::<f64>()
@@ -433,35 +400,10 @@ impl RunRecord {
                 if !columns_seen {
                     return Err("completed run without the column line".into());
                 }
-                let count = |key: &str| -> Result<u64, String> {
-                    get(key)?
-                        .parse::<u64>()
-                        .map_err(|e| format!("header `{key}`: {e}"))
-                };
-                let vision = match vision_samples {
-                    Some(samples) => Some(VisionRun {
-                        samples,
-                        initialisations: count("vision_initialisations")?,
-                        tracking_losses: count("vision_tracking_losses")?,
-                        relocalisations: count("vision_relocalisations")?,
-                        motion_model_recoveries: if get("vision_motion_model_recoveries").is_ok() {
-                            count("vision_motion_model_recoveries")?
-                        } else {
-                            0
-                        },
-                        aiding: if get("vision_system").is_ok() {
-                            Some(AidingRun {
-                                inertial_starts: count("aiding_inertial_starts")?,
-                                inertial_start_failures: count("aiding_inertial_start_failures")?,
-                                priors_active: count("aiding_priors_active")?,
-                                joint_failures: count("aiding_joint_failures")?,
-                            })
-                        } else {
-                            None
-                        },
-                    }),
-                    None => None,
-                };
+                let vision = sections
+                    .into_iter()
+                    .map(|(h, rows)| vision_run(&h, rows))
+                    .collect::<Result<_, _>>()?;
                 RunOutcome::Completed {
                     distance_m: num("distance_m")?,
                     samples,
@@ -486,6 +428,127 @@ impl RunRecord {
             outcome,
         })
     }
+}
+
+/// `# key = value` lines as read.
+type HeaderLines = Vec<(String, String)>;
+
+/// The value of `key` among `# key = value` lines.
+fn find<'a>(lines: &'a [(String, String)], key: &str) -> Result<&'a str, String> {
+    lines
+        .iter()
+        .find(|(k, _)| k == key)
+        .map(|(_, v)| v.as_str())
+        .ok_or_else(|| format!("header: missing `{key}`"))
+}
+
+/// A v1 run's visual section header, from the run's header: `vision_*` counters, and the
+/// IA-VNS's when `vision_system` is written (the VNS's otherwise).
+fn v1_section_header(header: &[(String, String)]) -> Vec<(String, String)> {
+    let system = if find(header, "vision_system").is_ok() {
+        "ia-vns"
+    } else {
+        "vns"
+    };
+    let mut h = vec![("system".to_owned(), system.to_owned())];
+    for (k, v) in header {
+        if let Some(name) = k.strip_prefix("vision_").filter(|n| *n != "system") {
+            h.push((name.to_owned(), v.clone()));
+        } else if k.starts_with("aiding_") {
+            h.push((k.clone(), v.clone()));
+        }
+    }
+    h
+}
+
+/// A visual system's section from its header lines and samples.
+fn vision_run(h: &[(String, String)], samples: Vec<NseSample>) -> Result<VisionRun, String> {
+    let count = |key: &str| -> Result<u64, String> {
+        find(h, key)?
+            .parse::<u64>()
+            .map_err(|e| format!("section `{key}`: {e}"))
+    };
+    let system = find(h, "system")?.to_owned();
+    Ok(VisionRun {
+        samples,
+        initialisations: count("initialisations")?,
+        tracking_losses: count("tracking_losses")?,
+        relocalisations: count("relocalisations")?,
+        // v1 wrote it only when not zero.
+        motion_model_recoveries: match find(h, "motion_model_recoveries") {
+            Ok(_) => count("motion_model_recoveries")?,
+            Err(_) => 0,
+        },
+        aiding: match find(h, "aiding_inertial_starts") {
+            Ok(_) => Some(AidingRun {
+                inertial_starts: count("aiding_inertial_starts")?,
+                inertial_start_failures: count("aiding_inertial_start_failures")?,
+                priors_active: count("aiding_priors_active")?,
+                joint_failures: count("aiding_joint_failures")?,
+            }),
+            Err(_) => None,
+        },
+        system,
+    })
+}
+
+/// One sample row.
+fn parse_sample(line: &str) -> Result<NseSample, String> {
+    let v: Vec<f64> = line
+        .split(',')
+        .map(f64::from_str)
+        .collect::<Result<_, _>>()
+        .map_err(|e| format!("bad number: {e}"))?;
+    let [
+        t_s,
+        yaw_deg,
+        pitch_deg,
+        bank_deg,
+        att_norm_deg,
+        alt_m,
+        hor_m,
+        hor_pct,
+        distance_m,
+    ] = v[..]
+    else {
+        return Err(format!("expected 9 values, got {}", v.len()));
+    };
+    Ok(NseSample {
+        t_s,
+        yaw_deg,
+        pitch_deg,
+        bank_deg,
+        att_norm_deg,
+        alt_m,
+        hor_m,
+        hor_pct,
+        distance_m,
+    })
+}
+
+/// A visual system's section: `# system = NAME`, its counters, its column line and samples.
+fn write_vision_section(t: &mut String, v: &VisionRun) {
+    let _ = writeln!(t, "# system = {}", one_line(&v.system));
+    let _ = writeln!(t, "# initialisations = {}", v.initialisations);
+    let _ = writeln!(t, "# tracking_losses = {}", v.tracking_losses);
+    let _ = writeln!(t, "# relocalisations = {}", v.relocalisations);
+    let _ = writeln!(
+        t,
+        "# motion_model_recoveries = {}",
+        v.motion_model_recoveries
+    );
+    if let Some(a) = &v.aiding {
+        let _ = writeln!(t, "# aiding_inertial_starts = {}", a.inertial_starts);
+        let _ = writeln!(
+            t,
+            "# aiding_inertial_start_failures = {}",
+            a.inertial_start_failures
+        );
+        let _ = writeln!(t, "# aiding_priors_active = {}", a.priors_active);
+        let _ = writeln!(t, "# aiding_joint_failures = {}", a.joint_failures);
+    }
+    let _ = writeln!(t, "{RUN_VISION_COLUMNS}");
+    write_samples(t, &v.samples);
 }
 
 /// One row per sample, every number at its fixed number of decimals.
@@ -517,25 +580,35 @@ pub fn fly(scenario: u8, setup: &FlightSetup, seed: u64) -> RunRecord {
         let mut recorder = MetricsRecorder::new();
         let mut flight = Flight::new(setup, seed)?;
         let summary = flight.run(&mut recorder, |_| {})?;
+        let mut tracks = recorder.vision_samples();
         let vision = flight
             .navigator()
-            .and_then(|n| n.vns_counters())
-            .map(|c| VisionRun {
-                samples: recorder.vision_samples(),
-                initialisations: c.initialisations,
-                tracking_losses: c.tracking_losses,
-                relocalisations: c.relocalisations,
-                motion_model_recoveries: c.motion_model_recoveries,
-                aiding: flight
-                    .navigator()
-                    .and_then(|n| n.aiding_counters())
-                    .map(|a| AidingRun {
+            .into_iter()
+            .flat_map(|n| n.visual_systems())
+            .zip(&setup.vision_systems)
+            .map(|(v, system)| {
+                let samples = tracks
+                    .iter_mut()
+                    .find(|(name, _)| *name == system.name())
+                    .map(|(_, s)| std::mem::take(s))
+                    .unwrap_or_default();
+                let c = v.counters;
+                VisionRun {
+                    system: system.name().to_owned(),
+                    samples,
+                    initialisations: c.initialisations,
+                    tracking_losses: c.tracking_losses,
+                    relocalisations: c.relocalisations,
+                    motion_model_recoveries: c.motion_model_recoveries,
+                    aiding: v.aiding.map(|a| AidingRun {
                         inertial_starts: a.inertial_starts,
                         inertial_start_failures: a.inertial_start_failures,
                         priors_active: a.priors_active,
                         joint_failures: a.joint_failures,
                     }),
-            });
+                }
+            })
+            .collect::<Vec<_>>();
         Ok::<_, crate::flight::FlightError>((summary.distance_m, recorder.finish(), vision))
     }));
     let outcome = match result {
@@ -582,8 +655,8 @@ pub struct Batch {
     /// Worker threads (all cores if `None`).
     pub jobs: Option<usize>,
     /// Keep the run files already in the output directory that hold a run of this batch
-    /// (same scenario, navigation, duration and seed, with or without the vision block as
-    /// the batch has a camera or not) instead of flying their seeds again: an interrupted
+    /// (same scenario, navigation, duration and seed, and the same visual systems in the same
+    /// order) instead of flying their seeds again: an interrupted
     /// batch goes on where it stopped. Runs are deterministic, so a kept file is the file
     /// flying the seed again would write.
     pub resume: bool,
@@ -602,8 +675,17 @@ impl Batch {
     /// [`Batch::resume`]); anything else (missing, unreadable, another set-up) is flown again.
     fn kept_run(&self, path: &Path, seed: u64) -> Option<RunRecord> {
         let record = RunRecord::parse(&std::fs::read_to_string(path).ok()?).ok()?;
+        // The same visual systems in the same order (none without a camera).
         let same_vision = match &record.outcome {
-            RunOutcome::Completed { vision, .. } => vision.is_some() == self.setup.camera.is_some(),
+            RunOutcome::Completed { vision, .. } => {
+                let flown = vision.iter().map(|v| v.system.as_str());
+                match (&self.setup.camera, &self.setup.navigation) {
+                    (Some(c), NavigationMode::Ins) if c.vision_navigation => {
+                        flown.eq(self.setup.vision_systems.iter().map(|s| s.name()))
+                    }
+                    _ => vision.is_empty(),
+                }
+            }
             RunOutcome::Failed { .. } => true,
         };
         (record.seed == seed
@@ -847,7 +929,7 @@ mod tests {
             outcome: RunOutcome::Completed {
                 distance_m: 1234.5,
                 samples: vec![sample],
-                vision: None,
+                vision: Vec::new(),
             },
         };
         let text = record.to_text();
@@ -879,75 +961,100 @@ mod tests {
         let truncated = text.replace(RUN_COLUMNS, "t_s,yaw_deg");
         assert!(RunRecord::parse(&truncated).is_err());
 
-        // With the VNS: its samples (NaN where it did not track) and counters come back, and
-        // the INS samples stay the INS's.
+        // With two visual systems: each one's samples (NaN where it did not track) and
+        // counters come back in order, and the INS samples stay the INS's.
         let vns_sample = NseSample {
             hor_m: 40.0,
             ..sample
+        };
+        let vns = VisionRun {
+            system: "vns".into(),
+            samples: vec![crate::metrics::missing_sample(0.0, 0.0), vns_sample],
+            initialisations: 1,
+            tracking_losses: 3,
+            relocalisations: 2,
+            motion_model_recoveries: 4,
+            aiding: None,
+        };
+        let ia_vns = VisionRun {
+            system: "ia-vns".into(),
+            samples: vec![sample],
+            tracking_losses: 0,
+            aiding: Some(AidingRun {
+                inertial_starts: 4_990,
+                inertial_start_failures: 3,
+                priors_active: 120,
+                joint_failures: 1,
+            }),
+            ..vns.clone()
         };
         let with_vision = RunRecord {
             outcome: RunOutcome::Completed {
                 distance_m: 1234.5,
                 samples: vec![sample],
-                vision: Some(VisionRun {
-                    samples: vec![crate::metrics::missing_sample(0.0, 0.0), vns_sample],
-                    initialisations: 1,
-                    tracking_losses: 3,
-                    relocalisations: 2,
-                    motion_model_recoveries: 4,
-                    aiding: Some(AidingRun {
-                        inertial_starts: 4_990,
-                        inertial_start_failures: 3,
-                        priors_active: 120,
-                        joint_failures: 1,
-                    }),
-                }),
+                vision: vec![vns.clone(), ia_vns.clone()],
             },
-            ..record
+            ..record.clone()
         };
         let text = with_vision.to_text();
         let back = RunRecord::parse(&text).unwrap();
         assert_eq!(back.to_text(), text);
         let RunOutcome::Completed {
-            vision: Some(VisionRun {
-                aiding: Some(a), ..
-            }),
-            ..
+            samples, vision, ..
         } = &back.outcome
         else {
-            panic!("the IA-VNS's counters did not come back")
-        };
-        assert_eq!((a.inertial_starts, a.priors_active), (4_990, 120));
-        let RunOutcome::Completed {
-            samples,
-            vision: Some(v),
-            ..
-        } = &back.outcome
-        else {
-            panic!("should be completed with the VNS")
+            panic!("should be completed")
         };
         assert_eq!((samples.len(), samples[0].hor_m), (1, 12.5));
+        assert_eq!(vision.len(), 2);
         assert_eq!(
-            (v.initialisations, v.tracking_losses, v.relocalisations),
-            (1, 3, 2)
+            (vision[0].system.as_str(), vision[1].system.as_str()),
+            ("vns", "ia-vns")
         );
-        assert!(v.samples[0].att_norm_deg.is_nan());
-        assert_eq!(v.samples[1].hor_m, 40.0);
-        // A VNS section without its counters is an error, not a silent zero.
-        let no_counters = text.replace("# vision_tracking_losses = 3\n", "");
+        assert!(vision[0].samples[0].att_norm_deg.is_nan());
+        assert_eq!(vision[0].samples[1].hor_m, 40.0);
+        assert_eq!(
+            (vision[0].tracking_losses, vision[0].motion_model_recoveries),
+            (3, 4)
+        );
+        assert_eq!(vision[1].aiding, ia_vns.aiding);
+        // A section without its counters is an error, not a silent zero.
+        let no_counters = text.replacen("# tracking_losses = 3\n", "", 1);
         assert!(RunRecord::parse(&no_counters).is_err());
-        // Motion-model recoveries are written only when there were some: absent reads as 0.
-        assert_eq!(v.motion_model_recoveries, 4);
-        let none = text.replace("# vision_motion_model_recoveries = 4\n", "");
-        let Ok(RunRecord {
-            outcome: RunOutcome::Completed {
-                vision: Some(v), ..
-            },
-            ..
-        }) = RunRecord::parse(&none)
-        else {
-            panic!("a run file without recoveries should parse")
+        // Rows before a section's column line, or a key outside a section, are errors.
+        let orphan = text.replacen("# system = vns\n", "", 1);
+        assert!(RunRecord::parse(&orphan).is_err());
+
+        // A v1 file (one system, its counters in the run's header) reads as that system.
+        let v1 = format!(
+            "{RUN_FILE_MAGIC_V1}\n# scenario = 2\n# scenario_name = two lines\n\
+             # navigation = ins\n# duration_s = 500.000\n# seed = 7\n# status = completed\n\
+             # distance_m = 1234.500\n# vision_initialisations = 1\n\
+             # vision_tracking_losses = 0\n# vision_relocalisations = 2\n\
+             # vision_system = ia-vns\n# aiding_inertial_starts = 4990\n\
+             # aiding_inertial_start_failures = 3\n# aiding_priors_active = 120\n\
+             # aiding_joint_failures = 1\n{RUN_COLUMNS}\n{}{RUN_VISION_COLUMNS}\n{}",
+            text.lines().nth(9).unwrap().to_owned() + "\n",
+            text.lines().nth(9).unwrap().to_owned() + "\n",
+        );
+        let back = RunRecord::parse(&v1).unwrap();
+        let RunOutcome::Completed { vision, .. } = &back.outcome else {
+            panic!("should be completed")
         };
-        assert_eq!(v.motion_model_recoveries, 0);
+        assert_eq!(vision.len(), 1);
+        assert_eq!(vision[0].system, "ia-vns");
+        assert_eq!(vision[0].relocalisations, 2);
+        assert_eq!(vision[0].motion_model_recoveries, 0);
+        assert_eq!(vision[0].aiding, ia_vns.aiding);
+        let v1_vns = v1.replace("# vision_system = ia-vns\n", "").replace(
+            "# aiding_inertial_starts = 4990\n# aiding_inertial_start_failures = 3\n\
+             # aiding_priors_active = 120\n# aiding_joint_failures = 1\n",
+            "",
+        );
+        let back = RunRecord::parse(&v1_vns).unwrap();
+        let RunOutcome::Completed { vision, .. } = &back.outcome else {
+            panic!("should be completed")
+        };
+        assert_eq!((vision[0].system.as_str(), vision[0].aiding), ("vns", None));
     }
 }

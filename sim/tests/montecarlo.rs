@@ -301,7 +301,7 @@ fn synthetic_run(seed: u64) -> RunRecord {
         outcome: RunOutcome::Completed {
             distance_m: 1500.0,
             samples,
-            vision: None,
+            vision: Vec::new(),
         },
     }
 }
@@ -365,6 +365,138 @@ fn report_table_holds_the_statistics_at_t_end_whatever_the_sharding() {
     let err = report::report(&[dir.join("parts")], &dir.join("x")).unwrap_err();
     assert!(err.to_string().contains("seed 3"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `synthetic_run` with two visual systems whose final horizontal errors are known: the VNS
+/// `10 × seed` m, the IA-VNS `seed` m; the IA-VNS of `lost_seed` does not track at t_end.
+fn synthetic_vision_run(seed: u64, lost_seed: u64) -> RunRecord {
+    let mut run = synthetic_run(seed);
+    let RunOutcome::Completed {
+        samples, vision, ..
+    } = &mut run.outcome
+    else {
+        unreachable!()
+    };
+    let system = |name: &str, hor_m: f64, lost: bool| {
+        let mut s = samples.clone();
+        let last = s.last_mut().unwrap();
+        last.hor_m = hor_m;
+        if lost {
+            *last = metrics::missing_sample(last.t_s, last.distance_m);
+        }
+        montecarlo::VisionRun {
+            system: name.to_owned(),
+            samples: s,
+            initialisations: 1,
+            tracking_losses: u64::from(lost),
+            relocalisations: 0,
+            motion_model_recoveries: 0,
+            aiding: None,
+        }
+    };
+    *vision = vec![
+        system("vns", 10.0 * seed as f64, false),
+        system("ia-vns", seed as f64, seed == lost_seed),
+    ];
+    run
+}
+
+#[test]
+fn the_report_compares_every_visual_system_on_the_runs_where_all_track() {
+    let dir = temp_dir("vision-report");
+    // Seed 4's IA-VNS is lost at t_end: the comparison is over seeds 1–3 and 5.
+    let runs: Vec<RunRecord> = (1..=5).map(|s| synthetic_vision_run(s, 4)).collect();
+    write_runs(&dir, &runs);
+    report::report(std::slice::from_ref(&dir), &dir).unwrap();
+    let text = std::fs::read_to_string(dir.join(report::REPORT_FILE)).unwrap();
+    assert!(text.contains("VNS, IA-VNS on the same 5 flights"), "{text}");
+    assert!(
+        text.contains("over the 4 runs where every system tracks then"),
+        "{text}"
+    );
+    // Tracking counters: one loss in one run for the IA-VNS, 4 of 5 tracking at t_end.
+    assert!(
+        text.contains("| IA-VNS | 5 | 0 | 1 (1) | 0 | 0 | 4 | – | – |"),
+        "{text}"
+    );
+    // Horizontal [m], mean (σ) over seeds 1, 2, 3, 5: VNS 27.5 (14.79), IA-VNS 2.75 (1.48).
+    let hor = |name: &str| {
+        let line = text
+            .lines()
+            .find(|l| {
+                l.starts_with(&format!("| {name} | "))
+                    && l.contains(" (")
+                    && l.matches('|').count() == 9
+            })
+            .unwrap_or_else(|| panic!("no {name} row in\n{text}"));
+        line.split(" | ").nth(6).unwrap().to_owned()
+    };
+    let std = |v: &[f64]| stats(v).unwrap();
+    let (vns, ia) = (std(&[10.0, 20.0, 30.0, 50.0]), std(&[1.0, 2.0, 3.0, 5.0]));
+    let cell = |s: report::Stats| {
+        format!(
+            "{} ({})",
+            metrics::format_fixed(s.mean, 2),
+            metrics::format_fixed(s.std, 2)
+        )
+    };
+    assert_eq!(hor("VNS"), cell(vns));
+    assert_eq!(hor("IA-VNS"), cell(ia));
+    for png in [
+        "vision_horizontal_pct.png",
+        "vision_horizontal_m.png",
+        "vision_attitude_norm.png",
+        "vision_altitude.png",
+    ] {
+        assert!(dir.join(png).is_file(), "{png}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Rendering once for several systems changes none of them: each system's section of a
+/// two-system flight is the section it gets flown alone, byte for byte.
+#[test]
+fn systems_flown_together_give_what_each_gives_alone() {
+    use ianav_sim::flight::systems::VisionSystem;
+    let mut setup = FlightSetup::builtin(2).unwrap();
+    setup.scenario.duration_s = 10.0;
+    let zone = ianav_sim::terrain::Zone::Urban;
+    let start = zone.start();
+    setup.scenario.start.lat_deg = start.lat_deg;
+    setup.scenario.start.lon_deg = start.lon_deg;
+    setup.camera = Some(ianav_sim::flight::CameraSetup::new(std::sync::Arc::new(
+        ianav_sim::terrain::Terrain::new(zone, 0),
+    )));
+    let sections = |systems: &[VisionSystem]| {
+        let mut s = setup.clone();
+        s.vision_systems = systems.to_vec();
+        match montecarlo::fly(2, &s, 5).outcome {
+            RunOutcome::Completed { vision, .. } => vision,
+            RunOutcome::Failed { reason } => panic!("{reason}"),
+        }
+    };
+    let together = sections(&[VisionSystem::Vns, VisionSystem::IaVns]);
+    let vns = sections(&[VisionSystem::Vns]);
+    let ia_vns = sections(&[VisionSystem::IaVns]);
+    assert_eq!(together.len(), 2);
+    assert!(
+        together[1].aiding.is_some_and(|a| a.inertial_starts > 0),
+        "the IA-VNS never predicted from the INS: {:?}",
+        together[1]
+    );
+    assert!(
+        together[0].samples.iter().any(|s| !s.hor_m.is_nan()),
+        "the VNS never tracked"
+    );
+    // Compared through their debug form: NaN samples (not tracking yet) are not `==`.
+    let text = |v: &montecarlo::VisionRun| format!("{v:?}");
+    assert_eq!(text(&together[0]), text(&vns[0]));
+    assert_eq!(text(&together[1]), text(&ia_vns[0]));
+    // The two differ (otherwise the comparison would prove nothing).
+    assert_ne!(
+        format!("{:?}", together[0].samples),
+        format!("{:?}", together[1].samples)
+    );
 }
 
 #[test]

@@ -6,40 +6,37 @@
 //! ([`crate::vision::vns`]) on the camera's frames when a camera is fitted.
 //!
 //! The VNS is the paper's baseline: it starts from the INS pose and the height over the
-//! terrain at its first image (`x̊₀`) and never reads the INS afterwards. Its pose is reported
-//! beside the fused solution ([`NavSolution::vision_fix`]); the fused position stays the
-//! INS's.
+//! terrain at its first image (`x̊₀`) and never reads the INS afterwards; the IA-VNS reads it at
+//! every frame. The configured system's pose is reported beside the fused solution
+//! ([`NavSolution::vision_fix`]); the fused position stays the INS's. Other systems can run
+//! beside it on the same frames for comparison ([`vision`]).
 
 pub mod history;
 pub mod policy;
 pub mod replay;
 pub mod solution;
+pub mod vision;
 
 pub use policy::{StartKind, StartPolicy, StartRecord};
 pub use solution::{
     InsStatus, NavCovariance, NavSolution, PositionSource, VisionFix, VisionState, VisionStatus,
 };
+pub use vision::{ComparedVision, ComparedVisionError, VisualSystemView};
 
 use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
-use crate::math::wgs84;
 use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent};
-use crate::vision::camera::{Camera, CameraConfig, CameraConfigError, Mounting};
-use crate::vision::vns::{
-    InertialFrame, Vns, VnsConfig, VnsCounters, VnsError, VnsOutput, VnsStart, VnsState,
-};
+use crate::vision::camera::{CameraConfig, CameraConfigError, Mounting};
+use crate::vision::vns::{VnsConfig, VnsCounters, VnsError};
 use history::{HistoryPose, PoseHistory};
-use nalgebra::{Isometry3, Vector3};
 use policy::{Running, StartState};
+use vision::VisualSystems;
 
 /// Span of the INS pose history, µs: longer than any frame's age that is accepted.
 pub const POSE_HISTORY_US: u64 = 2_000_000;
 
 /// A height over the terrain older than this at a frame is not used to start the VNS, µs.
 pub const MAX_HEIGHT_AGE_US: u64 = 1_000_000;
-
-/// Seed of the VNS's grid-cell order (any fixed value: the order only has to be arbitrary).
-const VNS_CELL_ORDER_SEED: u64 = 0x5653_4f43_454c_4c53; // "VSOCELLS"
 
 /// Why a navigator could not be built.
 #[derive(Debug, thiserror::Error)]
@@ -53,6 +50,9 @@ pub enum NavError {
     /// The visual navigation's settings are invalid.
     #[error(transparent)]
     Vision(#[from] VnsError),
+    /// The compared systems are invalid.
+    #[error(transparent)]
+    ComparedVision(#[from] ComparedVisionError),
 }
 
 /// The camera as the navigation knows it: intrinsics and the *estimated* mounting (the true
@@ -81,6 +81,10 @@ pub struct NavConfig {
     /// records what its flight ran with; logs from before it take the defaults.
     #[serde(default)]
     pub vision: VnsConfig,
+    /// Visual systems run beside `vision` on the same frames (with a camera), for comparison
+    /// only: their poses are reported ([`Navigator::visual_systems`]), never fused.
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub compared_vision: Vec<ComparedVision>,
     /// The time contract's reorder window, µs: a frame taken more than this before the newest
     /// IMU sample is rejected and counted (`frames_late`); one within it is navigated with the
     /// INS pose at its own time (the pose history spans [`POSE_HISTORY_US`]).
@@ -101,6 +105,7 @@ impl NavConfig {
             start: StartPolicy::new(mag_decimal_year),
             camera: None,
             vision: VnsConfig::default(),
+            compared_vision: Vec::new(),
             reorder_window_us: default_reorder_window_us(),
         }
     }
@@ -150,10 +155,8 @@ pub struct Navigator {
     imu_noisy: bool,
     /// The worst ratio when the IMU was last reported noisier than configured.
     imu_noisy_ratio: f64,
-    /// The visual navigation and the estimated camera mounting (with a camera).
-    vns: Option<(Vns, Isometry3<f64>)>,
-    vision: VisionStatus,
-    vision_fix: Option<VisionFix>,
+    /// The visual navigation systems (with a camera).
+    visual: Option<VisualSystems>,
     /// The latest height over the terrain.
     h_agl: Option<HeightAboveTerrain>,
 }
@@ -167,25 +170,10 @@ impl Navigator {
         cfg.ins.validate().map_err(InsError::from)?;
         // Checked with or without a camera: the settings are recorded either way.
         cfg.vision.validate().map_err(VnsError::from)?;
-        let vns = match &cfg.camera {
-            Some(c) => {
-                let camera = Camera::from_config(&c.intrinsics)?;
-                // The CG is taken at the reference point: its offset (decimetres) is far below
-                // the visual navigation's resolution at flight heights.
-                let zeta_bc = c.mounting.zeta_bc(&Vector3::zeros());
-                Some((
-                    Vns::new(camera, cfg.vision.clone(), VNS_CELL_ORDER_SEED)?,
-                    zeta_bc,
-                ))
-            }
+        vision::validate_compared(&cfg.compared_vision)?;
+        let visual = match &cfg.camera {
+            Some(c) => Some(VisualSystems::new(c, &cfg.vision, &cfg.compared_vision)?),
             None => None,
-        };
-        let vision = match vns {
-            Some(_) => VisionStatus {
-                state: VisionState::WaitingForStart,
-                ..VisionStatus::INACTIVE
-            },
-            None => VisionStatus::INACTIVE,
         };
         Ok(Self {
             cfg: cfg.clone(),
@@ -200,9 +188,7 @@ impl Navigator {
             imu_noise: ImuNoiseMonitor::default(),
             imu_noisy: false,
             imu_noisy_ratio: 0.0,
-            vns,
-            vision,
-            vision_fix: None,
+            visual,
             h_agl: None,
         })
     }
@@ -301,99 +287,52 @@ impl Navigator {
             q_nb: sol.q_nb,
         });
         let mut nav = NavSolution::from_ins(sol, self.reset_counter);
-        nav.vision = self.vision;
-        nav.vision_fix = self.vision_fix;
+        nav.vision = *self.vision();
+        nav.vision_fix = self.vision_fix().copied();
         Some(nav)
     }
 
-    /// Run the VNS on a frame: its start estimate is the INS pose and the height over the
-    /// terrain at the frame's time (used only until it has initialised).
+    /// Run the visual systems on a frame.
     fn navigate_frame(&mut self, frame: &Frame) {
-        let start = self.vns_start(frame.t_us);
-        let ins = self.inertial_frame(frame.t_us);
-        let Some((vns, zeta_bc)) = self.vns.as_mut() else {
+        let Some(visual) = self.visual.as_mut() else {
             return;
         };
-        let zeta_bc = *zeta_bc;
-        match vns.process(frame, start.as_ref(), ins.as_ref()) {
-            Ok(Some(out)) => {
-                self.vision = vision_status(&out);
-                self.vision_fix =
-                    (out.state == VnsState::Tracking).then(|| body_fix(&out, &zeta_bc));
-            }
-            Ok(None) => {
-                self.vision.state = vision_state(vns.state());
-                self.vision_fix = None;
-            }
-            Err(_) => self.stats.frames_rejected += 1,
+        if visual
+            .process(frame, &self.history, self.h_agl.as_ref())
+            .is_err()
+        {
+            self.stats.frames_rejected += 1;
         }
-    }
-
-    /// The INS at `t_us` as the IA-VNS reads it (only when its changes need it).
-    fn inertial_frame(&self, t_us: u64) -> Option<InertialFrame> {
-        let (vns, zeta_bc) = self.vns.as_ref()?;
-        if !vns.config().aiding.needs_ins() {
-            return None;
-        }
-        let pose = self.history.at(t_us)?;
-        let q_en = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad);
-        Some(InertialFrame {
-            t_us,
-            zeta_eb: Isometry3::from_parts(
-                nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
-                q_en * pose.q_nb,
-            ),
-            v_e_mps: q_en * pose.v_ned_mps,
-            q_nb: pose.q_nb,
-            h_m: pose.pos.h_m,
-            zeta_bc: *zeta_bc,
-        })
-    }
-
-    /// `x̊₀` at `t_us`: the INS camera pose and the height over the terrain, when both are
-    /// known then.
-    fn vns_start(&self, t_us: u64) -> Option<VnsStart> {
-        let (vns, zeta_bc) = self.vns.as_ref()?;
-        if vns.state() != VnsState::WaitingForStart && vns.state() != VnsState::Initialising {
-            return None;
-        }
-        let h = self
-            .h_agl
-            .filter(|h| t_us.abs_diff(h.t_us) <= MAX_HEIGHT_AGE_US)?;
-        let pose = self.history.at(t_us)?;
-        let q_eb = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad) * pose.q_nb;
-        let zeta_eb = Isometry3::from_parts(
-            nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
-            q_eb,
-        );
-        // The camera's height over the terrain: the body's, less the lens's offset along the
-        // vertical (below the CG: higher up is smaller).
-        let zeta_ec = zeta_eb * zeta_bc;
-        let lens_down_m = (pose.q_nb * zeta_bc.translation.vector).z;
-        Some(VnsStart {
-            zeta_ec,
-            h_agl_m: h.h_agl_m - lens_down_m,
-        })
     }
 
     /// The visual navigation's state and latest frame.
     pub fn vision(&self) -> &VisionStatus {
-        &self.vision
+        self.visual
+            .as_ref()
+            .map_or(&VisionStatus::INACTIVE, VisualSystems::status)
     }
 
     /// The visual navigation's latest pose (while it tracks).
     pub fn vision_fix(&self) -> Option<&VisionFix> {
-        self.vision_fix.as_ref()
+        self.visual.as_ref().and_then(VisualSystems::fix)
+    }
+
+    /// Every visual system (with a camera): the configured one first (`name` `None`), then the
+    /// compared ones in their configured order.
+    pub fn visual_systems(&self) -> impl Iterator<Item = VisualSystemView<'_>> {
+        self.visual.iter().flat_map(VisualSystems::views)
     }
 
     /// Counters of the visual navigation (with a camera).
     pub fn vns_counters(&self) -> Option<&VnsCounters> {
-        self.vns.as_ref().map(|(v, _)| v.counters())
+        self.visual.as_ref().map(VisualSystems::counters)
     }
 
     /// Counters of the IA-VNS's steps (with a camera and any of them switched on).
     pub fn aiding_counters(&self) -> Option<&crate::vision::vns::AidingCounters> {
-        self.vns.as_ref().and_then(|(v, _)| v.aiding_counters())
+        self.visual
+            .as_ref()
+            .and_then(VisualSystems::aiding_counters)
     }
 
     fn start_at(&mut self, record: StartRecord, init: &InsInit) {
@@ -451,39 +390,6 @@ impl Navigator {
     /// Counters of the INS (`None` before the initialisation).
     pub fn ins_stats(&self) -> Option<&crate::ins::InsStats> {
         self.ins.as_ref().map(Ins::stats)
-    }
-}
-
-fn vision_state(state: VnsState) -> VisionState {
-    match state {
-        VnsState::WaitingForStart => VisionState::WaitingForStart,
-        VnsState::Initialising => VisionState::Initialising,
-        VnsState::Tracking => VisionState::Tracking,
-        VnsState::Relocalising => VisionState::Relocalising,
-    }
-}
-
-fn vision_status(out: &VnsOutput) -> VisionStatus {
-    let n = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
-    VisionStatus {
-        state: vision_state(out.state),
-        n_matched: n(out.n_matched),
-        n_inliers: n(out.n_inliers),
-        n_keyframes: n(out.n_keyframes),
-        n_points: n(out.n_points),
-        reprojection_rms_px: Some(out.reprojection_rms_px).filter(|v| v.is_finite()),
-    }
-}
-
-/// The body pose of a visual camera pose: `zeta_eb = zeta_ec ⊗ zeta_bc*`.
-fn body_fix(out: &VnsOutput, zeta_bc: &Isometry3<f64>) -> VisionFix {
-    let zeta_eb = out.zeta_ec * zeta_bc.inverse();
-    let pos = wgs84::ecef_to_geodetic(&zeta_eb.translation.vector);
-    let q_ne = wgs84::q_en(pos.lat_rad, pos.lon_rad).inverse();
-    VisionFix {
-        t_us: out.t_us,
-        pos,
-        q_nb: q_ne * zeta_eb.rotation,
     }
 }
 
@@ -672,9 +578,7 @@ mod tests {
             let nav = Navigator::new(&cfg).unwrap();
             assert_eq!(nav.config().vision.pose.max_iterations, 5);
             assert_eq!(
-                nav.vns
-                    .as_ref()
-                    .map(|(v, _)| v.config().pose.max_iterations),
+                nav.visual.as_ref().map(|v| v.config().pose.max_iterations),
                 with_camera.then_some(5)
             );
         }
@@ -704,5 +608,44 @@ mod tests {
                 );
             }
         }
+    }
+
+    #[test]
+    fn compared_systems_are_built_in_order_and_bad_ones_refused() {
+        let mut cfg = NavConfig::new(InsConfig::default(), 2026.5);
+        cfg.camera = Some(NavCamera {
+            intrinsics: CameraConfig::default(),
+            mounting: Mounting {
+                q_bc: UnitQuaternion::identity(),
+                t_rc_b_m: Vector3::zeros(),
+            },
+        });
+        let compared = |name: &str| ComparedVision {
+            name: name.to_owned(),
+            vision: VnsConfig::default(),
+        };
+        cfg.compared_vision = vec![compared("vns"), compared("ia-vns")];
+        let nav = Navigator::new(&cfg).unwrap();
+        let names: Vec<Option<&str>> = nav.visual_systems().map(|v| v.name).collect();
+        assert_eq!(names, [None, Some("vns"), Some("ia-vns")]);
+        // Recorded in sensor logs: the TOML form reads back.
+        let text = toml::to_string(&cfg).unwrap();
+        assert_eq!(toml::from_str::<NavConfig>(&text).unwrap(), cfg);
+
+        for name in ["", "a b", "a,b", "vns"] {
+            let mut bad = cfg.clone();
+            bad.compared_vision.push(compared(name));
+            assert!(matches!(
+                Navigator::new(&bad),
+                Err(NavError::ComparedVision(ComparedVisionError::Name(n))) if n == name
+            ));
+        }
+        let mut bad = cfg.clone();
+        bad.compared_vision[1].vision.pose.tukey_k = f64::NAN;
+        let err = Navigator::new(&bad).expect_err("NaN setting");
+        assert!(err.to_string().contains("`ia-vns`"), "{err}");
+        // Without a camera there is nothing to run them on.
+        cfg.camera = None;
+        assert_eq!(Navigator::new(&cfg).unwrap().visual_systems().count(), 0);
     }
 }

@@ -55,6 +55,7 @@ pub(crate) fn setup(args: &SetupArgs) -> Result<FlightSetup> {
             .validate()
             .with_context(|| path.display().to_string())?;
     }
+    setup.vision_systems = args.vision_systems.clone();
     setup.navigation = match args.navigation {
         Navigation::Truth => NavigationMode::Truth,
         Navigation::Ins => NavigationMode::Ins,

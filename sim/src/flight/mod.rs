@@ -29,8 +29,11 @@ use ianav::vision::camera::MountingPair;
 mod observer;
 mod sensors;
 mod setup;
+pub mod systems;
 
-pub use observer::{FlightObserver, FlightSummary, NoObserver, OperationRecord, TruthSample};
+pub use observer::{
+    FlightObserver, FlightSummary, NoObserver, OperationRecord, TruthSample, VisionOutput,
+};
 pub(crate) use sensors::estimate_from_nav;
 pub use setup::{CameraSetup, FlightError, FlightSetup, NavigationMode, PositionAid, RatesConfig};
 
@@ -100,6 +103,10 @@ pub struct Flight {
     ins_init_rng: rng::Stream,
     /// The navigation core (`None` under truth navigation).
     nav: Option<Navigator>,
+    /// Names of the navigator's visual systems, in its order (with a camera).
+    vision_names: Vec<&'static str>,
+    /// The visual systems' states at the latest output (kept to reuse its allocation).
+    vision_outputs: Vec<VisionOutput>,
     /// Latest navigation solution.
     nav_solution: Option<NavSolution>,
     /// Sensor events of the current sample instant, in the order the navigator consumes them.
@@ -353,6 +360,24 @@ impl Flight {
             observer.estimate_sample(&truth, &self.estimate);
             if let Some(solution) = &self.nav_solution {
                 observer.nav_solution(&truth, solution);
+                if let Some(nav) = self.nav.as_ref()
+                    && self.camera.is_some()
+                {
+                    self.vision_outputs.clear();
+                    self.vision_outputs
+                        .extend(
+                            nav.visual_systems()
+                                .zip(&self.vision_names)
+                                .map(|(v, name)| VisionOutput {
+                                    name,
+                                    status: *v.status,
+                                    fix: v.fix.copied(),
+                                }),
+                        );
+                    if !self.vision_outputs.is_empty() {
+                        observer.vision_outputs(&truth, solution.t_us, &self.vision_outputs);
+                    }
+                }
             }
         }
         Ok(())

@@ -3,7 +3,7 @@
 
 use ianav::env::atmosphere::AtmosphereOffsets;
 use ianav::math::wgs84::Geodetic;
-use ianav::nav::NavSolution;
+use ianav::nav::{NavSolution, VisionFix, VisionStatus};
 use ianav::sensors::SensorEvent;
 use nalgebra::{UnitQuaternion, Vector3};
 use serde::{Deserialize, Serialize};
@@ -62,8 +62,23 @@ pub trait FlightObserver {
     /// Truth and the full INS solution at the output rate (INS navigation only, once the INS
     /// has started), right after `estimate_sample`.
     fn nav_solution(&mut self, _truth: &TruthSample, _solution: &NavSolution) {}
+    /// Every visual system's state at the output rate (a camera flight on the INS navigation),
+    /// right after `nav_solution` of time `t_us`, in the order of
+    /// [`FlightSetup::vision_systems`](super::FlightSetup::vision_systems).
+    fn vision_outputs(&mut self, _truth: &TruthSample, _t_us: u64, _systems: &[VisionOutput]) {}
     /// A guidance operation started at mission time `t_s`.
     fn operation_started(&mut self, _t_s: f64, _index: usize, _operation: &Operation) {}
+}
+
+/// One visual system's state at an output.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct VisionOutput {
+    /// Its name (`vns`, `ia-vns`, …: [`super::systems::VisionSystem::name`]).
+    pub name: &'static str,
+    /// State and latest frame.
+    pub status: VisionStatus,
+    /// Latest pose, while it tracks (its `t_us` is the frame's).
+    pub fix: Option<VisionFix>,
 }
 
 /// Observer that ignores everything (benchmarks).

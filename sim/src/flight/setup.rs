@@ -11,6 +11,7 @@ use ianav::nav::{NavCamera, NavConfig, Navigator};
 use nalgebra::Vector3;
 use serde::{Deserialize, Serialize};
 
+use super::systems::{DEFAULT_VISION_SYSTEMS, VisionSystem, navigator_vision};
 use super::{Flight, FlightCamera, to_us};
 use crate::aircraft::{Actuators, AirInputs, Aircraft, AircraftParams, TruthState, air_relative};
 use crate::control::{ControlConfig, Controller, Guidance, Navigation, TruthNavigation};
@@ -69,6 +70,9 @@ pub enum FlightError {
     /// aircraft flew into the terrain, ends the flight as `Departed`).
     #[error("camera: {0}")]
     Camera(String),
+    /// The visual systems' list is empty or names one twice.
+    #[error("vision systems `{0}`: give at least one, each once")]
+    VisionSystems(String),
     /// The aircraft left the physical envelope (non-finite state, below sea level, stalled
     /// far below the minimum airspeed or overspeeding): the models are no longer valid.
     #[error("flight departed at mission time {t_s:.2} s: {reason}")]
@@ -188,8 +192,12 @@ pub struct FlightSetup {
     pub navigation: NavigationMode,
     /// INS configuration (used when `navigation` is `Ins`).
     pub ins: InsConfig,
-    /// Visual navigation settings (used when the navigator runs on the camera's frames).
+    /// Visual navigation settings (used when the navigator runs on the camera's frames): the
+    /// base of every system of `vision_systems`.
     pub vision: VnsConfig,
+    /// The visual systems run on the same frames (with a camera): the first is the
+    /// navigator's configured system, the others run beside it.
+    pub vision_systems: Vec<VisionSystem>,
     /// Camera and terrain (`None`: no frames, the default).
     pub camera: Option<CameraSetup>,
 }
@@ -207,6 +215,11 @@ impl FlightSetup {
         self.vision
             .validate()
             .map_err(|e| FlightError::Nav(ianav::nav::NavError::Vision(e.into())))?;
+        let names: Vec<&str> = self.vision_systems.iter().map(|s| s.name()).collect();
+        let repeated = (1..names.len()).any(|i| names[..i].contains(&names[i]));
+        if names.is_empty() || repeated {
+            return Err(FlightError::VisionSystems(names.join(",")));
+        }
         Ok(())
     }
 
@@ -222,6 +235,7 @@ impl FlightSetup {
             navigation: NavigationMode::default(),
             ins: InsConfig::default(),
             vision: VnsConfig::default(),
+            vision_systems: DEFAULT_VISION_SYSTEMS.to_vec(),
             camera: None,
         })
     }
@@ -371,6 +385,12 @@ impl Flight {
             NavigationMode::Ins => {
                 let mut cfg = NavConfig::new(setup.ins.clone(), scn.magnetic_decimal_year);
                 cfg.vision = setup.vision.clone();
+                if let Some((vision, compared)) =
+                    navigator_vision(&setup.vision_systems, &setup.vision)
+                {
+                    cfg.vision = vision;
+                    cfg.compared_vision = compared;
+                }
                 cfg.camera = setup
                     .camera
                     .as_ref()
@@ -419,6 +439,8 @@ impl Flight {
             estimate: navigation.estimate(),
             ins_init_rng: rng::stream(seed, "ins.init"),
             nav,
+            vision_names: setup.vision_systems.iter().map(|s| s.name()).collect(),
+            vision_outputs: Vec::new(),
             nav_solution: None,
             pending_events: Vec::with_capacity(8),
             position_aid: None,

@@ -2,7 +2,8 @@
 //! P4; the authors' post-processing, A6.6: mean, σ and largest value across runs of histories
 //! sampled every 10 s): reads the run files of one or several batch directories (shards merge by
 //! seed), and writes `report.md` with the navigation system error at `t_end`, the time histories as
-//! PNG plots and as `nse_timeseries.csv`.
+//! PNG plots and as `nse_timeseries.csv`; with a camera, every visual system beside the INS
+//! (`vision.rs`).
 //!
 //! Everything written depends only on the set of run files: runs are sorted by seed, sums run
 //! in that order and numbers are printed with fixed decimals, so shards merged give the same
@@ -16,6 +17,10 @@ use std::path::{Path, PathBuf};
 use crate::metrics::{NseSample, format_fixed};
 use crate::montecarlo::{RUNS_DIR, RunOutcome, RunRecord};
 use crate::plots::{self, Chart, PALETTE, Series};
+
+mod vision;
+
+pub use vision::{display_name, system_colour};
 
 /// The report file.
 pub const REPORT_FILE: &str = "report.md";
@@ -589,7 +594,7 @@ pub fn write_report(runs: &[RunRecord], out: &Path) -> Result<ReportSummary, Rep
             let _ = writeln!(md, "![{caption}]({file})\n");
         }
     }
-    vision_section(&mut md, &completed, out)?;
+    vision::section(&mut md, &completed, out)?;
     let report_path = out.join(REPORT_FILE);
     std::fs::write(&report_path, &md).map_err(io_error(&report_path))?;
     Ok(ReportSummary {
@@ -598,208 +603,6 @@ pub fn write_report(runs: &[RunRecord], out: &Path) -> Result<ReportSummary, Rep
         completed: completed.len(),
         att_norm_deg: att_norm,
     })
-}
-
-/// The VNS beside the INS on the same flights (runs with a camera): the paper's table at
-/// t_end for each system, the tracking losses, and μ ± σ with the worst run against time.
-fn vision_section(
-    md: &mut String,
-    completed: &[(&RunRecord, f64, &[NseSample])],
-    out: &Path,
-) -> Result<(), ReportError> {
-    let with_vision: Vec<(&RunRecord, &[NseSample], &crate::montecarlo::VisionRun)> = completed
-        .iter()
-        .filter_map(|(r, _, ins)| match &r.outcome {
-            RunOutcome::Completed {
-                vision: Some(v), ..
-            } => Some((*r, *ins, v)),
-            _ => None,
-        })
-        .collect();
-    if with_vision.is_empty() {
-        return Ok(());
-    }
-    // Runs whose VNS tracks at the end are compared; the others are counted.
-    let tracked: Vec<(&RunRecord, &NseSample, &NseSample)> = with_vision
-        .iter()
-        .filter_map(|(r, ins, v)| {
-            let vns_end = v.samples.last().filter(|s| !s.att_norm_deg.is_nan())?;
-            Some((*r, ins.last()?, vns_end))
-        })
-        .collect();
-    let losses: u64 = with_vision.iter().map(|(_, _, v)| v.tracking_losses).sum();
-    let runs_with_losses = with_vision
-        .iter()
-        .filter(|(_, _, v)| v.tracking_losses > 0)
-        .count();
-    let relocalisations: u64 = with_vision.iter().map(|(_, _, v)| v.relocalisations).sum();
-    let recoveries: u64 = with_vision
-        .iter()
-        .map(|(_, _, v)| v.motion_model_recoveries)
-        .sum();
-    // Said only when there were some, so reports of batches that never needed it are unchanged.
-    let recovered = if recoveries > 0 {
-        format!(
-            " {recoveries} frames were tracked from a second start (the motion model's guess, \
-             aligned again on the fine levels, bare or turned) after sparse alignment's pose \
-             failed (not losses)."
-        )
-    } else {
-        String::new()
-    };
-    let never = with_vision
-        .iter()
-        .filter(|(_, _, v)| v.initialisations == 0)
-        .count();
-    let _ = writeln!(
-        md,
-        "## Visual navigation (VNS) beside the INS\n\n\
-         The paper's VNS (semi-direct visual odometry fed with the images and the initial \
-         estimate at its first image only) and the INS, on the same {} flights. \
-         Tracking losses: {losses}, in {runs_with_losses} of the {} runs ({relocalisations} \
-         relocalisations); {never} runs never initialised; {} runs track at t_end and are \
-         compared below.{recovered}\n",
-        with_vision.len(),
-        with_vision.len(),
-        tracked.len()
-    );
-    if !tracked.is_empty() {
-        let _ = writeln!(
-            md,
-            "| error | unit | INS mean | INS std | INS largest | VNS mean | VNS std | VNS largest |\n\
-             |---|---|---|---|---|---|---|---|"
-        );
-        for m in &METRICS {
-            let ins: Vec<f64> = tracked.iter().map(|(_, i, _)| (m.get)(i)).collect();
-            let vns: Vec<f64> = tracked.iter().map(|(_, _, v)| (m.get)(v)).collect();
-            if let (Some(a), Some(b)) = (stats(&ins), stats(&vns)) {
-                let d = m.table_decimals;
-                let f = |x: f64| format_fixed(x, d);
-                let _ = writeln!(
-                    md,
-                    "| {} | {} | {} | {} | {} | {} | {} | {} |",
-                    m.label,
-                    m.unit,
-                    f(a.mean),
-                    f(a.std),
-                    f(a.largest),
-                    f(b.mean),
-                    f(b.std),
-                    f(b.largest)
-                );
-            }
-        }
-        let _ = writeln!(
-            md,
-            "
-| seed | VNS horizontal [m] | VNS horizontal [%] | VNS attitude [deg] | VNS Δh [m] | INS horizontal [m] | INS horizontal [%] | losses |
-|---|---|---|---|---|---|---|---|"
-        );
-        for (r, ins, vns) in &tracked {
-            let losses = with_vision
-                .iter()
-                .find(|(w, _, _)| w.seed == r.seed)
-                .map_or(0, |(_, _, v)| v.tracking_losses);
-            let _ = writeln!(
-                md,
-                "| {} | {} | {} | {} | {} | {} | {} | {losses} |",
-                r.seed,
-                format_fixed(vns.hor_m, 1),
-                format_fixed(vns.hor_pct, 2),
-                format_fixed(vns.att_norm_deg, 3),
-                format_fixed(vns.alt_m, 1),
-                format_fixed(ins.hor_m, 1),
-                format_fixed(ins.hor_pct, 2),
-            );
-        }
-        md.push('\n');
-    }
-    // μ ± σ against time for both systems, with the run of largest final VNS error.
-    let ins_runs: Vec<(&RunRecord, f64, &[NseSample])> = with_vision
-        .iter()
-        .map(|(r, ins, _)| (*r, 0.0, *ins))
-        .collect();
-    let vns_runs: Vec<(&RunRecord, f64, &[NseSample])> = with_vision
-        .iter()
-        .map(|(r, _, v)| (*r, 0.0, v.samples.as_slice()))
-        .collect();
-    let (ins_rows, vns_rows) = (time_rows(&ins_runs), time_rows(&vns_runs));
-    let worst = tracked
-        .iter()
-        .max_by(|a, b| a.2.hor_m.total_cmp(&b.2.hor_m))
-        .and_then(|(r, _, _)| with_vision.iter().find(|(w, _, _)| w.seed == r.seed));
-    let plots_to_draw = [
-        (
-            "hor_pct",
-            "vns_horizontal_pct.png",
-            "Horizontal error / distance: INS and VNS",
-        ),
-        (
-            "att_norm_deg",
-            "vns_attitude_norm.png",
-            "Attitude error norm: INS and VNS",
-        ),
-        ("alt_m", "vns_altitude.png", "Altitude error: INS and VNS"),
-    ];
-    let mut drawn = Vec::new();
-    for (key, file, title) in plots_to_draw {
-        let Some(k) = METRICS.iter().position(|m| m.key == key) else {
-            continue;
-        };
-        let band = |rows: &[TimeRow], name: &str, rgb| {
-            let pts = |f: &dyn Fn(&Stats) -> f64| -> Vec<(f64, f64)> {
-                rows.iter().map(|r| (r.t_s, f(&r.stats[k]))).collect()
-            };
-            [
-                Series {
-                    label: format!("{name} mean"),
-                    points: pts(&|s| s.mean),
-                    rgb,
-                    dashed: false,
-                },
-                Series {
-                    label: format!("{name} mean ± σ"),
-                    points: pts(&|s| s.mean + s.std),
-                    rgb,
-                    dashed: true,
-                },
-                Series {
-                    label: String::new(),
-                    points: pts(&|s| s.mean - s.std),
-                    rgb,
-                    dashed: true,
-                },
-            ]
-        };
-        let mut series: Vec<Series> = band(&ins_rows, "INS", PALETTE[1]).into();
-        series.extend(band(&vns_rows, "VNS", PALETTE[3]));
-        if let Some((r, _, v)) = worst {
-            series.push(Series {
-                label: format!("VNS worst run (seed {})", r.seed),
-                points: v
-                    .samples
-                    .iter()
-                    .filter(|s| !s.att_norm_deg.is_nan())
-                    .map(|s| (s.t_s, (METRICS[k].get)(s)))
-                    .collect(),
-                rgb: PALETTE[5],
-                dashed: false,
-            });
-        }
-        let chart = Chart {
-            title,
-            x_label: "mission time [s]",
-            y_label: METRICS[k].y_label,
-            series,
-            ..Chart::default()
-        };
-        plots::draw(&out.join(file), &chart, PLOT_SIZE.0, PLOT_SIZE.1)?;
-        drawn.push((file, title));
-    }
-    for (file, caption) in drawn {
-        let _ = writeln!(md, "![{caption}]({file})\n");
-    }
-    Ok(())
 }
 
 /// Read the runs of `dirs` and write the report to `out`.

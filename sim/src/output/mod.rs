@@ -12,13 +12,16 @@ use std::path::{Path, PathBuf};
 use ianav::io::sensor_log::SensorLogWriter;
 use ianav::math::so3;
 use ianav::math::wgs84::{self, Geodetic};
-use ianav::nav::{NavSolution, VisionState, VisionStatus};
+use ianav::nav::{NavSolution, VisionState};
 use ianav::sensors::SensorEvent;
 
 use crate::control::Operation;
-use crate::flight::{FlightObserver, FlightSummary, TruthSample, estimate_from_nav};
+use crate::flight::{FlightObserver, FlightSummary, TruthSample, VisionOutput, estimate_from_nav};
 use crate::metrics;
 use crate::plots::{self, Chart, PALETTE, PointMarker, Series, XMarker};
+
+mod vision;
+use vision::VisionTraces;
 
 /// Errors writing run outputs.
 #[derive(Debug, thiserror::Error)]
@@ -47,7 +50,8 @@ pub mod files {
     pub const SENSORS: &str = "sensors.bin";
     /// INS solution, its errors against the truth and its σ (INS navigation only).
     pub const NAVIGATION: &str = "navigation.csv";
-    /// Visual navigation (VNS): state, tracking quality, pose and its errors (with a camera).
+    /// Visual navigation: every system's state, tracking quality, pose and its errors (with a
+    /// camera).
     pub const VISION: &str = "vision.csv";
     /// Machine-readable summary.
     pub const SUMMARY: &str = "summary.toml";
@@ -70,12 +74,6 @@ sigma_v_n_mps,sigma_v_e_mps,sigma_v_d_mps,sigma_n_m,sigma_e_m,sigma_d_m,wind_n_m
 true_wind_n_mps,true_wind_e_mps,tas_mps,true_tas_mps,delta_t_k,true_delta_t_k,delta_p_pa,\
 true_delta_p_pa,e_gyr_x_dps,e_gyr_y_dps,e_gyr_z_dps,p_dps,q_dps,r_dps,true_p_dps,true_q_dps,\
 true_r_dps,aoa_deg,true_aoa_deg,aos_deg,true_aos_deg,nees_att,nees_vel,gnss_nis";
-
-/// Columns of `vision.csv`: one row per output while the VNS runs; the pose and its errors
-/// (estimate − truth, as in `navigation.csv`) are empty unless it tracks at that instant.
-const VISION_HEADER: &str = "t_s,state,matched,inliers,keyframes,points,reproj_rms_px,lat_deg,\
-lon_deg,h_m,yaw_deg,pitch_deg,bank_deg,err_yaw_deg,err_pitch_deg,err_bank_deg,err_att_deg,\
-err_h_m,err_hor_m,err_hor_pct";
 
 /// One plot point kept every this many output samples (the CSV keeps every one), counted
 /// from mission time 0 so that the truth and INS points fall at the same instants.
@@ -102,13 +100,6 @@ struct NavPoint {
     /// Horizontal 1σ the INS reports, m.
     sigma_hor_m: f64,
     gnss_denied: bool,
-}
-
-/// One VNS point per second of flight while it tracks.
-#[derive(Debug, Clone, Copy)]
-struct VisionPoint {
-    nse: metrics::NseSample,
-    pos: Geodetic,
 }
 
 /// Name of a vision state in `vision.csv` and the report.
@@ -145,14 +136,8 @@ pub struct RunWriter {
     plot: Vec<PlotPoint>,
     /// Truth outputs from mission time 0.
     samples_seen: usize,
-    /// Created at the first output with the VNS running.
-    vision: Option<BufWriter<File>>,
-    vision_points: Vec<VisionPoint>,
-    /// The last tracked VNS point and the last status.
-    vision_last: Option<VisionPoint>,
-    vision_status: Option<VisionStatus>,
-    /// Outputs with the VNS relocalising.
-    vision_relocalising_outputs: usize,
+    /// The visual systems (with a camera).
+    vision: VisionTraces,
     operations: Vec<(f64, usize, Operation)>,
     line: String,
     first_error: Option<OutputError>,
@@ -253,11 +238,7 @@ impl RunWriter {
             ins_denied_s: None,
             plot: Vec::new(),
             samples_seen: 0,
-            vision: None,
-            vision_points: Vec::new(),
-            vision_last: None,
-            vision_status: None,
-            vision_relocalising_outputs: 0,
+            vision: VisionTraces::default(),
             operations: Vec::new(),
             line: String::with_capacity(512),
             first_error: None,
@@ -281,10 +262,8 @@ impl RunWriter {
             let flushed = nav.flush();
             self.keep_error(files::NAVIGATION, flushed);
         }
-        if let Some(mut vision) = self.vision.take() {
-            let flushed = vision.flush();
-            self.keep_error(files::VISION, flushed);
-        }
+        let flushed = self.vision.flush();
+        self.keep_error(files::VISION, flushed);
         if let Some(writer) = self.sensors.take() {
             let finished = writer.finish().map(|_| ());
             self.keep_error(files::SENSORS, finished);
@@ -346,8 +325,6 @@ impl RunWriter {
         };
         let track: Vec<(f64, f64)> = self.plot.iter().map(|p| to_km(&p.pos)).collect();
         let nav_track: Vec<(f64, f64)> = self.nav_points.iter().map(|p| to_km(&p.pos)).collect();
-        let vision_track: Vec<(f64, f64)> =
-            self.vision_points.iter().map(|p| to_km(&p.pos)).collect();
         let timed: Vec<(f64, (f64, f64))> = self
             .plot
             .iter()
@@ -376,12 +353,7 @@ impl RunWriter {
                 ..line("INS estimate", nav_track, 1)
             });
         }
-        if !vision_track.is_empty() {
-            track_series.push(Series {
-                dashed: true,
-                ..line("VNS estimate", vision_track, 3)
-            });
-        }
+        track_series.extend(self.vision.tracks(&to_km));
         let charts = [
             (
                 "ground_track.png",
@@ -478,54 +450,36 @@ impl RunWriter {
                 drawn.push((file, caption));
             }
         }
-        if !self.vision_points.is_empty() && !self.nav_points.is_empty() {
+        if !self.vision.is_empty() && !self.nav_points.is_empty() {
             let ins = |f: fn(&metrics::NseSample) -> f64| -> Vec<(f64, f64)> {
                 self.nav_points
                     .iter()
                     .map(|p| (p.nse.t_s, f(&p.nse)))
                     .collect()
             };
-            let vns = |f: fn(&metrics::NseSample) -> f64| -> Vec<(f64, f64)> {
-                self.vision_points
-                    .iter()
-                    .map(|p| (p.nse.t_s, f(&p.nse)))
-                    .collect()
-            };
-            let pair = |what: &str, f: fn(&metrics::NseSample) -> f64, k: usize| {
-                [
-                    line(&format!("INS {what}"), ins(f), k),
-                    Series {
-                        dashed: true,
-                        ..line(&format!("VNS {what}"), vns(f), k)
-                    },
-                ]
+            let error_chart = |title, y_label, f: fn(&metrics::NseSample) -> f64| {
+                time_chart(title, y_label, self.vision.error_series(ins(f), f))
             };
             let vision_charts = [
                 (
-                    "vision_attitude_error.png",
-                    "INS and VNS attitude errors",
-                    time_chart(
-                        "Attitude error, INS (solid) and VNS (dashed)",
-                        "error [deg]",
-                        [
-                            pair("yaw", |e| e.yaw_deg, 0),
-                            pair("pitch", |e| e.pitch_deg, 1),
-                            pair("bank", |e| e.bank_deg, 2),
-                        ]
-                        .concat(),
-                    ),
+                    "vision_horizontal_error.png",
+                    "Horizontal error of the INS and the visual systems",
+                    error_chart("Horizontal position error", "error [m]", |e| e.hor_m),
                 ),
                 (
-                    "vision_position_error.png",
-                    "INS and VNS position errors",
-                    time_chart(
-                        "Position error, INS (solid) and VNS (dashed)",
-                        "error [m]",
-                        [
-                            pair("horizontal", |e| e.hor_m, 0),
-                            pair("altitude", |e| e.alt_m, 1),
-                        ]
-                        .concat(),
+                    "vision_altitude_error.png",
+                    "Altitude error of the INS and the visual systems",
+                    error_chart("Altitude error (estimate − truth)", "error [m]", |e| {
+                        e.alt_m
+                    }),
+                ),
+                (
+                    "vision_attitude_error.png",
+                    "Attitude error norm of the INS and the visual systems",
+                    error_chart(
+                        "Attitude error norm ‖Log(q_truth⁻¹ q_est)‖",
+                        "error [deg]",
+                        |e| e.att_norm_deg,
                     ),
                 ),
             ];
@@ -535,109 +489,6 @@ impl RunWriter {
             }
         }
         Ok(drawn)
-    }
-
-    /// The VNS section: its last state and the final errors beside the INS's.
-    fn vision_report(&self, r: &mut String, status: &VisionStatus) {
-        let _ = writeln!(
-            r,
-            "\n## Visual navigation (VNS)\n\nThe paper's VNS: semi-direct visual odometry from the images and the initial estimate at its first image only. Last state: {}; {} outputs relocalising.\n",
-            vision_state_name(status.state),
-            self.vision_relocalising_outputs
-        );
-        let (Some(v), Some(i)) = (self.vision_last, self.nav_last) else {
-            let _ = writeln!(r, "The VNS never tracked.");
-            return;
-        };
-        let _ = writeln!(
-            r,
-            "| at t = {:.1} s | yaw [deg] | pitch [deg] | bank [deg] | attitude norm [deg] | altitude [m] | horizontal [m] | horizontal [% of distance] |\n|---|---|---|---|---|---|---|---|",
-            v.nse.t_s
-        );
-        for (name, e) in [("VNS (last tracked)", v.nse), ("INS (end)", i.nse)] {
-            let _ = writeln!(
-                r,
-                "| {name} | {:.3} | {:.3} | {:.3} | {:.3} | {:.2} | {:.1} | {} |",
-                e.yaw_deg,
-                e.pitch_deg,
-                e.bank_deg,
-                e.att_norm_deg,
-                e.alt_m,
-                e.hor_m,
-                metrics::format_fixed(e.hor_pct, 2)
-            );
-        }
-    }
-
-    /// One `vision.csv` row (and plot point) for the solution of this output.
-    fn vision_row(&mut self, truth: &TruthSample, sol: &NavSolution) {
-        if !open_csv_once(
-            &mut self.vision,
-            &mut self.first_error,
-            &self.dir,
-            files::VISION,
-            VISION_HEADER,
-        ) {
-            return;
-        }
-        let v = &sol.vision;
-        self.vision_status = Some(*v);
-        if v.state == VisionState::Relocalising {
-            self.vision_relocalising_outputs += 1;
-        }
-        self.line.clear();
-        let _ = write!(
-            self.line,
-            "{:.3},{},{},{},{},{},{}",
-            truth.t_s,
-            vision_state_name(v.state),
-            v.n_matched,
-            v.n_inliers,
-            v.n_keyframes,
-            v.n_points,
-            v.reprojection_rms_px
-                .map_or(String::new(), |r| format!("{r:.3}"))
-        );
-        let fix = sol.vision_fix.filter(|f| f.t_us == sol.t_us);
-        match fix {
-            Some(f) => {
-                let e = metrics::nse_pose(truth, &f.pos, &f.q_nb);
-                let euler_deg = so3::euler_zyx(&f.q_nb).map(f64::to_degrees);
-                let _ = write!(
-                    self.line,
-                    ",{:.9},{:.9},{:.3},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.4},{:.3},{:.3},{}",
-                    f.pos.lat_rad.to_degrees(),
-                    f.pos.lon_rad.to_degrees(),
-                    f.pos.h_m,
-                    euler_deg.x,
-                    euler_deg.y,
-                    euler_deg.z,
-                    e.yaw_deg,
-                    e.pitch_deg,
-                    e.bank_deg,
-                    e.att_norm_deg,
-                    e.alt_m,
-                    e.hor_m,
-                    metrics::format_fixed(e.hor_pct, 4)
-                );
-                let point = VisionPoint { nse: e, pos: f.pos };
-                self.vision_last = Some(point);
-                // The same instants as the INS points (decimated from mission time 0).
-                if truth.t_s >= 0.0
-                    && self
-                        .nav_samples_seen
-                        .saturating_sub(1)
-                        .is_multiple_of(PLOT_EVERY_N_SAMPLES)
-                {
-                    self.vision_points.push(point);
-                }
-            }
-            None => self.line.push_str(",,,,,,,,,,,,,"),
-        }
-        if let Some(w) = self.vision.as_mut() {
-            let result = writeln!(w, "{}", self.line);
-            self.keep_error(files::VISION, result);
-        }
     }
 
     fn report(&self, s: &FlightSummary, plots: &[(&str, &str)]) -> String {
@@ -733,9 +584,8 @@ impl RunWriter {
                 );
             }
         }
-        if let Some(status) = self.vision_status {
-            self.vision_report(&mut r, &status);
-        }
+        self.vision
+            .report(&mut r, self.nav_last.as_ref().map(|p| &p.nse));
         let _ = writeln!(r, "\n## Plots\n");
         for (file, caption) in plots {
             let _ = writeln!(r, "![{caption}]({file})\n");
@@ -995,9 +845,22 @@ impl FlightObserver for RunWriter {
             let result = writeln!(w, "{}", self.line);
             self.keep_error(files::NAVIGATION, result);
         }
-        if sol.vision.state != VisionState::Inactive {
-            self.vision_row(truth, sol);
-        }
+    }
+
+    fn vision_outputs(&mut self, truth: &TruthSample, t_us: u64, systems: &[VisionOutput]) {
+        // The same instants as the INS points (decimated from mission time 0).
+        let plot_point = self
+            .nav_samples_seen
+            .saturating_sub(1)
+            .is_multiple_of(PLOT_EVERY_N_SAMPLES);
+        self.vision.rows(
+            &self.dir,
+            &mut self.first_error,
+            truth,
+            t_us,
+            systems,
+            plot_point,
+        );
     }
 
     fn operation_started(&mut self, t_s: f64, index: usize, operation: &Operation) {
@@ -1010,9 +873,9 @@ mod tests {
     use super::*;
     use crate::flight::{Flight, FlightSetup, NavigationMode};
 
-    /// A short camera flight over the urban zone: the VNS starts from the INS at its first
-    /// images, `vision.csv` holds its state every output and its pose with errors once it
-    /// tracks, and the report has its section.
+    /// A short camera flight over the urban zone: the VNS and the IA-VNS start from the INS at
+    /// their first images, `vision.csv` holds each one's state every output and its pose with
+    /// errors once it tracks, and the report has their section.
     #[test]
     fn a_camera_flight_writes_the_vision_file_and_section() {
         let dir = std::env::temp_dir().join(format!("ianav-output-vns-{}", std::process::id()));
@@ -1032,20 +895,33 @@ mod tests {
             .run(&mut writer, |_| {})
             .unwrap();
         let report = std::fs::read_to_string(writer.finish(&summary).unwrap()).unwrap();
-        assert!(report.contains("## Visual navigation (VNS)"), "{report}");
+        assert!(report.contains("## Visual navigation"), "{report}");
+        assert!(report.contains("| VNS | tracking |"), "{report}");
+        assert!(report.contains("| IA-VNS | tracking |"), "{report}");
         let csv = std::fs::read_to_string(dir.join(files::VISION)).unwrap();
         let rows: Vec<Vec<&str>> = csv
             .lines()
             .skip(1)
             .map(|l| l.split(',').collect())
             .collect();
-        assert!(rows.iter().all(|r| r.len() == 20), "{csv}");
-        let tracked: Vec<&Vec<&str>> = rows.iter().filter(|r| r[1] == "tracking").collect();
-        assert!(!tracked.is_empty(), "the VNS never tracked");
-        for r in &tracked {
-            // Started from the INS with GNSS: metres, not kilometres, from the truth.
-            let hor_m: f64 = r[18].parse().unwrap();
-            assert!(hor_m < 100.0, "{r:?}");
+        assert!(rows.iter().all(|r| r.len() == 21), "{csv}");
+        // Every output has one row per system, in the flight's order.
+        let systems: Vec<&str> = rows.iter().map(|r| r[1]).collect();
+        assert!(
+            systems.chunks(2).all(|pair| pair == ["vns", "ia-vns"]),
+            "{systems:?}"
+        );
+        for system in ["vns", "ia-vns"] {
+            let tracked: Vec<&Vec<&str>> = rows
+                .iter()
+                .filter(|r| r[1] == system && r[2] == "tracking")
+                .collect();
+            assert!(!tracked.is_empty(), "{system} never tracked");
+            for r in &tracked {
+                // Started from the INS with GNSS: metres, not kilometres, from the truth.
+                let hor_m: f64 = r[19].parse().unwrap();
+                assert!(hor_m < 100.0, "{r:?}");
+            }
         }
         std::fs::remove_dir_all(&dir).unwrap();
     }

@@ -1,0 +1,322 @@
+//! The visual navigation systems the navigator runs on the camera's frames (paper, "IA-VNS flow
+//! diagram"): the one whose pose the solution carries ([`NavConfig::vision`]), and any others
+//! run beside it on the same frames for comparison ([`NavConfig::compared_vision`]: the VNS
+//! beside the IA-VNS, the ablation's variants, docs/IAVNS.md). Every system reads the same INS
+//! pose history and height over the terrain, and none reads another's output, so a system run
+//! beside others gives what it gives alone, bit for bit.
+//!
+//! [`NavConfig::vision`]: super::NavConfig::vision
+//! [`NavConfig::compared_vision`]: super::NavConfig::compared_vision
+
+use nalgebra::{Isometry3, Vector3};
+
+use super::history::PoseHistory;
+use super::solution::{VisionFix, VisionState, VisionStatus};
+use super::{MAX_HEIGHT_AGE_US, NavCamera, NavError};
+use crate::math::wgs84;
+use crate::sensors::{Frame, HeightAboveTerrain};
+use crate::vision::camera::Camera;
+use crate::vision::vns::{
+    AidingCounters, InertialFrame, Vns, VnsConfig, VnsConfigError, VnsCounters, VnsError,
+    VnsOutput, VnsStart, VnsState,
+};
+
+/// Seed of the VNS's grid-cell order (any fixed value: the order only has to be arbitrary).
+const VNS_CELL_ORDER_SEED: u64 = 0x5653_4f43_454c_4c53; // "VSOCELLS"
+
+/// A visual navigation system run beside the navigating one on the same frames; its pose is
+/// reported ([`VisualSystemView`]) and used for nothing else.
+#[derive(Debug, Clone, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct ComparedVision {
+    /// Its name in reports and run files (`vns`, `ia-vns`, …): unique, not empty, no spaces.
+    pub name: String,
+    /// Its settings.
+    pub vision: VnsConfig,
+}
+
+/// Why the compared systems are refused.
+#[derive(Debug, thiserror::Error)]
+pub enum ComparedVisionError {
+    /// A name is empty, repeated, or holds a space or a comma.
+    #[error("compared_vision: the name `{0}` must be unique, not empty, without spaces or commas")]
+    Name(String),
+    /// A system's settings are invalid.
+    #[error("compared_vision `{name}`: {source}")]
+    Settings {
+        /// The system.
+        name: String,
+        /// What is wrong.
+        source: VnsConfigError,
+    },
+}
+
+/// Check the compared systems' names and settings.
+pub(super) fn validate_compared(compared: &[ComparedVision]) -> Result<(), ComparedVisionError> {
+    for (i, c) in compared.iter().enumerate() {
+        let bad_name = c.name.is_empty()
+            || c.name.chars().any(|ch| ch.is_whitespace() || ch == ',')
+            || compared[..i].iter().any(|o| o.name == c.name);
+        if bad_name {
+            return Err(ComparedVisionError::Name(c.name.clone()));
+        }
+        c.vision
+            .validate()
+            .map_err(|source| ComparedVisionError::Settings {
+                name: c.name.clone(),
+                source,
+            })?;
+    }
+    Ok(())
+}
+
+/// One visual navigation system and what it last produced.
+#[derive(Debug, Clone)]
+struct VisualSystem {
+    vns: Vns,
+    status: VisionStatus,
+    fix: Option<VisionFix>,
+}
+
+impl VisualSystem {
+    fn new(camera: Camera, cfg: &VnsConfig) -> Result<Self, VnsError> {
+        Ok(Self {
+            vns: Vns::new(camera, cfg.clone(), VNS_CELL_ORDER_SEED)?,
+            status: VisionStatus {
+                state: VisionState::WaitingForStart,
+                ..VisionStatus::INACTIVE
+            },
+            fix: None,
+        })
+    }
+
+    /// Run on one frame; `Err` when the frame was refused (size, buffer, time order).
+    fn process(
+        &mut self,
+        frame: &Frame,
+        start: Option<&VnsStart>,
+        ins: Option<&InertialFrame>,
+        zeta_bc: &Isometry3<f64>,
+    ) -> Result<(), VnsError> {
+        let waiting = matches!(
+            self.vns.state(),
+            VnsState::WaitingForStart | VnsState::Initialising
+        );
+        let start = start.filter(|_| waiting);
+        let ins = ins.filter(|_| self.vns.config().aiding.needs_ins());
+        match self.vns.process(frame, start, ins)? {
+            Some(out) => {
+                self.status = vision_status(&out);
+                self.fix = (out.state == VnsState::Tracking).then(|| body_fix(&out, zeta_bc));
+            }
+            None => {
+                self.status.state = vision_state(self.vns.state());
+                self.fix = None;
+            }
+        }
+        Ok(())
+    }
+
+    fn view<'a>(&'a self, name: Option<&'a str>) -> VisualSystemView<'a> {
+        VisualSystemView {
+            name,
+            status: &self.status,
+            fix: self.fix.as_ref(),
+            counters: self.vns.counters(),
+            aiding: self.vns.aiding_counters(),
+        }
+    }
+}
+
+/// A visual system's state as its drivers read it.
+#[derive(Debug, Clone, Copy)]
+pub struct VisualSystemView<'a> {
+    /// `None` for the navigating system ([`NavConfig::vision`](super::NavConfig::vision)),
+    /// the compared system's name otherwise.
+    pub name: Option<&'a str>,
+    /// State and latest frame.
+    pub status: &'a VisionStatus,
+    /// Latest pose, while it tracks.
+    pub fix: Option<&'a VisionFix>,
+    /// Counters.
+    pub counters: &'a VnsCounters,
+    /// The IA-VNS's counters (any of its changes switched on).
+    pub aiding: Option<&'a AidingCounters>,
+}
+
+/// The systems of a navigator with a camera.
+#[derive(Debug, Clone)]
+pub(super) struct VisualSystems {
+    /// The estimated camera mounting.
+    zeta_bc: Isometry3<f64>,
+    navigating: VisualSystem,
+    compared: Vec<(String, VisualSystem)>,
+}
+
+impl VisualSystems {
+    pub(super) fn new(
+        camera: &NavCamera,
+        vision: &VnsConfig,
+        compared: &[ComparedVision],
+    ) -> Result<Self, NavError> {
+        let cam = Camera::from_config(&camera.intrinsics)?;
+        // The CG is taken at the reference point: its offset (decimetres) is far below the
+        // visual navigation's resolution at flight heights.
+        let zeta_bc = camera.mounting.zeta_bc(&Vector3::zeros());
+        let compared = compared
+            .iter()
+            .map(|c| Ok((c.name.clone(), VisualSystem::new(cam, &c.vision)?)))
+            .collect::<Result<_, NavError>>()?;
+        Ok(Self {
+            zeta_bc,
+            navigating: VisualSystem::new(cam, vision)?,
+            compared,
+        })
+    }
+
+    /// Run every system on `frame`; `Err` when the navigating system refused it (the frame is
+    /// the same for all, so the others refuse it too).
+    pub(super) fn process(
+        &mut self,
+        frame: &Frame,
+        history: &PoseHistory,
+        h_agl: Option<&HeightAboveTerrain>,
+    ) -> Result<(), VnsError> {
+        let systems =
+            || std::iter::once(&self.navigating).chain(self.compared.iter().map(|c| &c.1));
+        let any_waiting = systems().any(|s| {
+            matches!(
+                s.vns.state(),
+                VnsState::WaitingForStart | VnsState::Initialising
+            )
+        });
+        let start = any_waiting
+            .then(|| start_at(frame.t_us, history, h_agl, &self.zeta_bc))
+            .flatten();
+        let any_aided = systems().any(|s| s.vns.config().aiding.needs_ins());
+        let ins = any_aided
+            .then(|| inertial_frame(frame.t_us, history, &self.zeta_bc))
+            .flatten();
+        let zeta_bc = self.zeta_bc;
+        for (_, system) in &mut self.compared {
+            // A refused frame is counted once, by the navigating system below.
+            let _ = system.process(frame, start.as_ref(), ins.as_ref(), &zeta_bc);
+        }
+        self.navigating
+            .process(frame, start.as_ref(), ins.as_ref(), &zeta_bc)
+    }
+
+    /// The navigating system's state and latest frame.
+    pub(super) fn status(&self) -> &VisionStatus {
+        &self.navigating.status
+    }
+
+    /// The navigating system's latest pose (while it tracks).
+    pub(super) fn fix(&self) -> Option<&VisionFix> {
+        self.navigating.fix.as_ref()
+    }
+
+    /// The navigating system's settings.
+    #[cfg(test)]
+    pub(super) fn config(&self) -> &VnsConfig {
+        self.navigating.vns.config()
+    }
+
+    /// The navigating system's counters.
+    pub(super) fn counters(&self) -> &VnsCounters {
+        self.navigating.vns.counters()
+    }
+
+    /// The navigating system's IA-VNS counters.
+    pub(super) fn aiding_counters(&self) -> Option<&AidingCounters> {
+        self.navigating.vns.aiding_counters()
+    }
+
+    /// Every system: the navigating one first, then the compared ones in their order.
+    pub(super) fn views(&self) -> impl Iterator<Item = VisualSystemView<'_>> {
+        std::iter::once(self.navigating.view(None)).chain(
+            self.compared
+                .iter()
+                .map(|(name, s)| s.view(Some(name.as_str()))),
+        )
+    }
+}
+
+/// The INS at `t_us` as the IA-VNS reads it.
+fn inertial_frame(
+    t_us: u64,
+    history: &PoseHistory,
+    zeta_bc: &Isometry3<f64>,
+) -> Option<InertialFrame> {
+    let pose = history.at(t_us)?;
+    let q_en = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad);
+    Some(InertialFrame {
+        t_us,
+        zeta_eb: Isometry3::from_parts(
+            nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
+            q_en * pose.q_nb,
+        ),
+        v_e_mps: q_en * pose.v_ned_mps,
+        q_nb: pose.q_nb,
+        h_m: pose.pos.h_m,
+        zeta_bc: *zeta_bc,
+    })
+}
+
+/// `x̊₀` at `t_us`: the INS camera pose and the height over the terrain, when both are known
+/// then.
+fn start_at(
+    t_us: u64,
+    history: &PoseHistory,
+    h_agl: Option<&HeightAboveTerrain>,
+    zeta_bc: &Isometry3<f64>,
+) -> Option<VnsStart> {
+    let h = h_agl.filter(|h| t_us.abs_diff(h.t_us) <= MAX_HEIGHT_AGE_US)?;
+    let pose = history.at(t_us)?;
+    let q_eb = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad) * pose.q_nb;
+    let zeta_eb = Isometry3::from_parts(
+        nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),
+        q_eb,
+    );
+    // The camera's height over the terrain: the body's, less the lens's offset along the
+    // vertical (below the CG: higher up is smaller).
+    let zeta_ec = zeta_eb * zeta_bc;
+    let lens_down_m = (pose.q_nb * zeta_bc.translation.vector).z;
+    Some(VnsStart {
+        zeta_ec,
+        h_agl_m: h.h_agl_m - lens_down_m,
+    })
+}
+
+fn vision_state(state: VnsState) -> VisionState {
+    match state {
+        VnsState::WaitingForStart => VisionState::WaitingForStart,
+        VnsState::Initialising => VisionState::Initialising,
+        VnsState::Tracking => VisionState::Tracking,
+        VnsState::Relocalising => VisionState::Relocalising,
+    }
+}
+
+fn vision_status(out: &VnsOutput) -> VisionStatus {
+    let n = |v: usize| u32::try_from(v).unwrap_or(u32::MAX);
+    VisionStatus {
+        state: vision_state(out.state),
+        n_matched: n(out.n_matched),
+        n_inliers: n(out.n_inliers),
+        n_keyframes: n(out.n_keyframes),
+        n_points: n(out.n_points),
+        reprojection_rms_px: Some(out.reprojection_rms_px).filter(|v| v.is_finite()),
+    }
+}
+
+/// The body pose of a visual camera pose: `zeta_eb = zeta_ec ⊗ zeta_bc*`.
+fn body_fix(out: &VnsOutput, zeta_bc: &Isometry3<f64>) -> VisionFix {
+    let zeta_eb = out.zeta_ec * zeta_bc.inverse();
+    let pos = wgs84::ecef_to_geodetic(&zeta_eb.translation.vector);
+    let q_ne = wgs84::q_en(pos.lat_rad, pos.lon_rad).inverse();
+    VisionFix {
+        t_us: out.t_us,
+        pos,
+        q_nb: q_ne * zeta_eb.rotation,
+    }
+}
