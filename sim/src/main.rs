@@ -69,7 +69,7 @@ struct SetupArgs {
     /// The visual systems run on the same frames (with --terrain), comma-separated: each is
     /// `vision.toml`'s settings with the IA-VNS's switches set its way (`config`: as they
     /// are). The first is the navigator's configured system. The ablation's list is
-    /// `vns,vns+init,vns+prediction,vns+priors,vns+structure,ia-vns,ia-vns-pitch`.
+    /// `vns,vns+init,vns+prediction,vns+priors,vns+structure,ia-vns,ia-vns-pitch,ia-vns-slerp`.
     #[arg(long, value_enum, value_delimiter = ',', default_value = "vns,ia-vns")]
     vision_systems: Vec<ianav_sim::flight::systems::VisionSystem>,
 }

@@ -1,17 +1,19 @@
-//! Time per frame of the visual navigation (the paper's VNS: SVO on the down-looking camera)
-//! over a simulated camera flight, for `ianav-sim bench-vns` and the `vns` criterion bench
-//! (docs/PERFORMANCE.md).
+//! Time per frame of the visual navigation (the paper's VNS and IA-VNS: SVO on the
+//! down-looking camera, with or without the inertial aiding) over a simulated camera flight,
+//! for `ianav-sim bench-vns` and the `vns` criterion bench (docs/PERFORMANCE.md).
 //!
-//! The flight's own navigator runs without the camera; a navigator of the timer's own, with
-//! the flight's estimated camera mounting, takes every sensor event of the flight and the
-//! handling of each frame (pyramid, tracking, mapping) is timed alone. Only the frames are
-//! timed: the IMU and air-data events between them are the INS's cost, measured elsewhere.
+//! The flight's own navigator runs without the camera; for each visual system, a navigator of
+//! the timer's own running that system alone, with the flight's estimated camera mounting,
+//! takes every sensor event of the flight and the handling of each frame (pyramid, tracking,
+//! mapping, and the IA-VNS's steps) is timed alone. Only the frames are timed: the IMU and
+//! air-data events between them are the INS's cost, measured elsewhere.
 
 use std::time::Instant;
 
 use ianav::nav::{NavCamera, NavConfig, NavError, Navigator, VisionState};
 use ianav::sensors::SensorEvent;
 
+use crate::flight::systems::VisionSystem;
 use crate::flight::{Flight, FlightObserver, FlightSetup};
 
 /// Why a timer could not be built.
@@ -25,9 +27,14 @@ pub enum VnsTimingError {
     Nav(#[from] NavError),
 }
 
-/// The navigation configuration of `flight` with the camera of `setup` and the flight's
-/// estimated mounting: what the flight's own navigator runs when it navigates on the frames.
-pub fn vision_config(setup: &FlightSetup, flight: &Flight) -> Result<NavConfig, VnsTimingError> {
+/// The navigation configuration of `flight` with the camera of `setup`, the flight's estimated
+/// mounting and the visual system `system` alone: what the flight's own navigator runs for
+/// that system when it navigates on the frames.
+pub fn vision_config(
+    setup: &FlightSetup,
+    flight: &Flight,
+    system: VisionSystem,
+) -> Result<NavConfig, VnsTimingError> {
     let (Some(camera), Some(mounting), Some(nav)) =
         (&setup.camera, flight.camera_mounting(), flight.navigator())
     else {
@@ -38,6 +45,8 @@ pub fn vision_config(setup: &FlightSetup, flight: &Flight) -> Result<NavConfig, 
         intrinsics: camera.camera,
         mounting: mounting.estimate,
     });
+    cfg.vision = system.config(&setup.vision);
+    cfg.compared_vision.clear();
     Ok(cfg)
 }
 
@@ -113,6 +122,18 @@ impl VnsTimer {
 impl FlightObserver for VnsTimer {
     fn sensor_event(&mut self, event: &SensorEvent) {
         self.push(event);
+    }
+}
+
+/// One timer per visual system, fed the same events (each system timed alone).
+#[derive(Debug)]
+pub struct VnsTimers(pub Vec<(VisionSystem, VnsTimer)>);
+
+impl FlightObserver for VnsTimers {
+    fn sensor_event(&mut self, event: &SensorEvent) {
+        for (_, timer) in &mut self.0 {
+            timer.push(event);
+        }
     }
 }
 

@@ -7,7 +7,7 @@ use std::time::Instant;
 use anyhow::{Result, bail};
 use ianav::nav::VisionState;
 use ianav_sim::flight::{Flight, NoObserver};
-use ianav_sim::vns_timing::{TimeSummary, VnsTimer, vision_config};
+use ianav_sim::vns_timing::{TimeSummary, VnsTimer, VnsTimers, vision_config};
 
 use super::setup;
 use crate::FlyArgs;
@@ -84,14 +84,25 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
     camera.vision_navigation = false;
     let terrain = std::sync::Arc::clone(&camera.terrain);
     let mut flight = Flight::new(&setup, fly.seed)?;
-    let mut timer = VnsTimer::new(&vision_config(&setup, &flight)?)?;
+    let mut timers = VnsTimers(
+        setup
+            .vision_systems
+            .iter()
+            .map(|&system| {
+                Ok((
+                    system,
+                    VnsTimer::new(&vision_config(&setup, &flight, system)?)?,
+                ))
+            })
+            .collect::<Result<_>>()?,
+    );
     let end_s = flight.end_time_s();
     let mut next_mark = 0.0;
     // Mission time, memory and the renderer's tile caches (bytes held), which grow with the
     // ground flown over and are the simulator's, not the navigation's.
     let mut marks = Vec::new();
     let started = Instant::now();
-    flight.run(&mut timer, |t_s| {
+    flight.run(&mut timers, |t_s| {
         if t_s >= next_mark {
             let (heights, albedo) = terrain.cache_stats();
             marks.push((t_s, memory_kb(), heights.bytes + albedo.bytes));
@@ -99,16 +110,48 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
         }
     })?;
     let wall_s = started.elapsed().as_secs_f64();
-    let frames = timer.frames();
+    let Some((_, first)) = timers.0.first() else {
+        bail!("no visual system to time (--vision-systems)");
+    };
     println!(
-        "scenario {} seed {} over {}: {} frames in {wall_s:.1} s of flight simulation (renderer included)",
+        "scenario {} seed {} over {}: {} frames in {wall_s:.1} s of flight simulation (renderer and every system included)",
         fly.setup.scenario,
         fly.seed,
         fly.setup.terrain.as_deref().unwrap_or("?"),
-        frames.len()
+        first.frames().len()
     );
+    for (system, timer) in &timers.0 {
+        print_system(system.name(), timer);
+    }
+    let frames = first.frames();
     println!(
-        "VNS time per frame (Navigator::push of the frame, one thread), ms:\n  {:<28} {:>6}  {:>7} {:>7} {:>7} {:>7} {:>7}",
+        "memory (RSS, every system's navigator included; the renderer's tile caches; the map of {} at the latest frame):",
+        setup.vision_systems.first().map_or("?", |s| s.name())
+    );
+    for (t_s, mem, tiles_bytes) in marks {
+        let t_us = (t_s + setup.scenario.warmup_s).max(0.0) * 1e6;
+        let n_before = frames.partition_point(|f| f.t_us as f64 <= t_us);
+        let map = n_before.checked_sub(1).map(|i| &frames[i]);
+        if let Some((rss, peak)) = mem {
+            println!(
+                "  at mission t = {t_s:7.1} s: RSS {rss:>7} kB (peak {peak:>7} kB), tile caches {:>7} kB, map {:>3} keyframes {:>5} points",
+                tiles_bytes / 1024,
+                map.map_or(0, |f| f.n_keyframes),
+                map.map_or(0, |f| f.n_points),
+            );
+        }
+    }
+    if let Some((rss, peak)) = memory_kb() {
+        println!("  at the end:             RSS {rss:>7} kB (peak {peak:>7} kB)");
+    }
+    Ok(())
+}
+
+/// One system's frame times and counters.
+fn print_system(name: &str, timer: &VnsTimer) {
+    let frames = timer.frames();
+    println!(
+        "{name}: time per frame (Navigator::push of the frame, one thread, this system alone), ms:\n  {:<28} {:>6}  {:>7} {:>7} {:>7} {:>7} {:>7}",
         "frames", "n", "mean", "median", "p90", "p99", "max"
     );
     print_summary("all", frames.iter().map(|f| f.ns));
@@ -144,7 +187,7 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
     );
     if let Some(c) = timer.navigator().vns_counters() {
         println!(
-            "VNS: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} second-chance recoveries ({} from turned starts), {} bad frames",
+            "{name}: {} initialisations, {} keyframes, {} tracking losses, {} relocalisations, {} second-chance recoveries ({} from turned starts), {} bad frames",
             c.initialisations,
             c.keyframes,
             c.tracking_losses,
@@ -154,22 +197,14 @@ pub(crate) fn bench_vns(fly: &FlyArgs) -> Result<()> {
             c.bad_frames
         );
     }
-    println!("memory (RSS; the renderer's tile caches; the VNS map at the latest frame):");
-    for (t_s, mem, tiles_bytes) in marks {
-        let t_us = (t_s + setup.scenario.warmup_s).max(0.0) * 1e6;
-        let n_before = frames.partition_point(|f| f.t_us as f64 <= t_us);
-        let map = n_before.checked_sub(1).map(|i| &frames[i]);
-        if let Some((rss, peak)) = mem {
-            println!(
-                "  at mission t = {t_s:7.1} s: RSS {rss:>7} kB (peak {peak:>7} kB), tile caches {:>7} kB, map {:>3} keyframes {:>5} points",
-                tiles_bytes / 1024,
-                map.map_or(0, |f| f.n_keyframes),
-                map.map_or(0, |f| f.n_points),
-            );
-        }
+    if let Some(a) = timer.navigator().aiding_counters() {
+        println!(
+            "{name}: {} frames from ζ* ({} failed), {} activations evaluated, {} priors active ({} joint not kept)",
+            a.inertial_starts,
+            a.inertial_start_failures,
+            a.activations_evaluated,
+            a.priors_active,
+            a.joint_failures
+        );
     }
-    if let Some((rss, peak)) = memory_kb() {
-        println!("  at the end:             RSS {rss:>7} kB (peak {peak:>7} kB)");
-    }
-    Ok(())
 }

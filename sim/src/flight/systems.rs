@@ -19,6 +19,9 @@ pub enum VisionSystem {
     /// The IA-VNS with the pitch-only activation mode.
     #[value(name = "ia-vns-pitch")]
     IaVnsPitch,
+    /// The IA-VNS with the full-attitude SLERP activation (beyond the paper).
+    #[value(name = "ia-vns-slerp")]
+    IaVnsSlerp,
     /// The VNS plus the INS initialisation alone.
     #[value(name = "vns+init")]
     VnsInit,
@@ -40,7 +43,7 @@ pub enum VisionSystem {
 pub const DEFAULT_VISION_SYSTEMS: [VisionSystem; 2] = [VisionSystem::Vns, VisionSystem::IaVns];
 
 /// The ablation's systems (docs/RESULTS.md "Ablation").
-pub const ABLATION_VISION_SYSTEMS: [VisionSystem; 7] = [
+pub const ABLATION_VISION_SYSTEMS: [VisionSystem; 8] = [
     VisionSystem::Vns,
     VisionSystem::VnsInit,
     VisionSystem::VnsPrediction,
@@ -48,14 +51,16 @@ pub const ABLATION_VISION_SYSTEMS: [VisionSystem; 7] = [
     VisionSystem::VnsStructure,
     VisionSystem::IaVns,
     VisionSystem::IaVnsPitch,
+    VisionSystem::IaVnsSlerp,
 ];
 
 impl VisionSystem {
     /// Every system, in the order of the enum.
-    pub const ALL: [Self; 8] = [
+    pub const ALL: [Self; 9] = [
         Self::Vns,
         Self::IaVns,
         Self::IaVnsPitch,
+        Self::IaVnsSlerp,
         Self::VnsInit,
         Self::VnsPrediction,
         Self::VnsPriors,
@@ -69,6 +74,7 @@ impl VisionSystem {
             Self::Vns => "vns",
             Self::IaVns => "ia-vns",
             Self::IaVnsPitch => "ia-vns-pitch",
+            Self::IaVnsSlerp => "ia-vns-slerp",
             Self::VnsInit => "vns+init",
             Self::VnsPrediction => "vns+prediction",
             Self::VnsPriors => "vns+priors",
@@ -103,6 +109,10 @@ impl VisionSystem {
             Self::IaVnsPitch => {
                 set(a, [true; 4]);
                 a.activation.mode = AdjustmentMode::Pitch;
+            }
+            Self::IaVnsSlerp => {
+                set(a, [true; 4]);
+                a.activation.mode = AdjustmentMode::Slerp;
             }
             Self::VnsInit => set(a, [true, false, false, false]),
             Self::VnsPrediction => set(a, [false, true, false, false]),

@@ -19,6 +19,7 @@ pub fn display_name(system: &str) -> String {
         "vns" => "VNS".to_owned(),
         "ia-vns" => "IA-VNS".to_owned(),
         "ia-vns-pitch" => "IA-VNS (pitch only)".to_owned(),
+        "ia-vns-slerp" => "IA-VNS (SLERP, beyond the paper)".to_owned(),
         "vns+init" => "VNS + INS initialisation".to_owned(),
         "vns+prediction" => "VNS + ζ* from the INS".to_owned(),
         "vns+priors" => "VNS + priors".to_owned(),

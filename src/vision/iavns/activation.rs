@@ -21,6 +21,13 @@
 //!   pressure-altitude rate: geometric and pressure rates differ by the temperature ratio, which
 //!   in a 1 m/s climb 10 K off standard leaves a spurious ≈ 0.04 m/s, above `ΔROC_LOW`.
 //!
+//! Beyond the paper, the full-attitude mode ([`AdjustmentMode::Slerp`]) that the paper proposes
+//! (eq. `nav_vis_assist_priors_activation_pitch_atttitude`) without a rule for the angle
+//! `Δφ°°`: here `Δφ°° = min(Δφ°°_1,MAX·ramp(Δφ**, Δφ_LOW), Δφ**)`, the proportional term of
+//! the other modes on the whole attitude error `Δφ** = ‖Log(q**⁻¹ ⊗ q̂)‖` (yaw included), and
+//! the altitude and rate-of-climb terms still act on the pitch; the pitch and bank
+//! proportional terms are replaced by the SLERP (docs/IAVNS.md, "The SLERP mode").
+//!
 //! The tests reproduce hand-computed cases of these rules (docs/IAVNS.md, "Tests").
 
 use std::collections::VecDeque;
@@ -36,6 +43,10 @@ pub enum AdjustmentMode {
     /// "Pitch and bank adjustment activation", the mode behind all the paper's IA-VNS results.
     #[default]
     PitchBank,
+    /// "Attitude adjustment activation" (beyond the paper, which proposes it without
+    /// implementing it): the whole attitude, yaw included, turned by `Δφ°°` towards the INS's
+    /// along the geodesic (SLERP), plus the altitude and rate-of-climb pitch terms.
+    Slerp,
 }
 
 /// How the paper's rule "`Δθ°°_θ` is set to zero if its sign differs from that of `Δθ°°_h`"
@@ -107,6 +118,11 @@ pub struct ActivationConfig {
     pub dtheta2_max_deg: f64,
     /// `Δξ°°_1,MAX`, ° per image: limit of the bank adjustment.
     pub dbank1_max_deg: f64,
+    /// `Δφ_LOW`, °: dead-band of the whole attitude error (SLERP mode only; beyond the paper).
+    pub dphi_low_deg: f64,
+    /// `Δφ°°_1,MAX`, ° per image: limit of the SLERP rotation (SLERP mode only; beyond the
+    /// paper).
+    pub dphi1_max_deg: f64,
     /// Image intervals over which `ΔROC` is taken ("the last 100 images or 10 s"), images.
     pub roc_window_images: u32,
     /// Adjusted angles: pitch, or pitch and bank (the paper's results).
@@ -125,6 +141,8 @@ impl Default for ActivationConfig {
             dtheta1_max_deg: 0.0005,
             dtheta2_max_deg: 0.0003,
             dbank1_max_deg: 0.0003,
+            dphi_low_deg: 0.2,
+            dphi1_max_deg: 0.0005,
             roc_window_images: 100,
             mode: AdjustmentMode::PitchBank,
             pitch_rule: PitchRule::ReadingB,
@@ -143,6 +161,8 @@ impl ActivationConfig {
             ("dtheta1_max_deg", self.dtheta1_max_deg),
             ("dtheta2_max_deg", self.dtheta2_max_deg),
             ("dbank1_max_deg", self.dbank1_max_deg),
+            ("dphi_low_deg", self.dphi_low_deg),
+            ("dphi1_max_deg", self.dphi1_max_deg),
         ];
         // Zero is allowed: a zero limit switches its term off, a zero dead-band makes a step.
         for (field, value) in thresholds {
@@ -174,13 +194,16 @@ pub struct AdjustmentErrors {
     pub dtheta_rad: f64,
     /// `Δξ = ξ° − ξ̂`, body bank, rad.
     pub dbank_rad: f64,
+    /// `Δφ** = ‖Log(q°**⁻¹ ⊗ q̂)‖`, the whole attitude error, rad (read in SLERP mode only).
+    pub dphi_rad: f64,
 }
 
 impl AdjustmentErrors {
     fn check_finite(&self) -> Result<(), ActivationError> {
         check_finite("dh_m", self.dh_m)?;
         check_finite("dtheta_rad", self.dtheta_rad)?;
-        check_finite("dbank_rad", self.dbank_rad)
+        check_finite("dbank_rad", self.dbank_rad)?;
+        check_finite("dphi_rad", self.dphi_rad)
     }
 }
 
@@ -203,8 +226,11 @@ pub struct Adjustment {
     pub roc_term_rad: f64,
     /// `Δθ°°`, the total pitch adjustment added to the reprojection-only pitch, rad.
     pub pitch_rad: f64,
-    /// `Δξ°°`, the bank adjustment added to the reprojection-only bank, rad (0 in pitch mode).
+    /// `Δξ°°`, the bank adjustment added to the reprojection-only bank, rad (0 in pitch and
+    /// SLERP modes).
     pub bank_rad: f64,
+    /// `Δφ°°`, the rotation towards the INS attitude along the geodesic, rad (SLERP mode only).
+    pub slerp_rad: f64,
     /// `ΔROC`, the rate-of-climb error the ROC term used, m/s.
     pub droc_mps: f64,
 }
@@ -214,7 +240,7 @@ impl Adjustment {
     /// optimisation runs; otherwise the caller keeps the reprojection-only pose.
     #[must_use]
     pub fn is_active(&self) -> bool {
-        self.pitch_rad != 0.0 || self.bank_rad != 0.0
+        self.pitch_rad != 0.0 || self.bank_rad != 0.0 || self.slerp_rad != 0.0
     }
 }
 
@@ -254,6 +280,8 @@ pub struct ActivationRules {
     dtheta1_max_rad: f64,
     dtheta2_max_rad: f64,
     dbank1_max_rad: f64,
+    dphi_low_rad: f64,
+    dphi1_max_rad: f64,
     mode: AdjustmentMode,
     pitch_rule: PitchRule,
 }
@@ -270,6 +298,8 @@ impl ActivationRules {
             dtheta1_max_rad: config.dtheta1_max_deg.to_radians(),
             dtheta2_max_rad: config.dtheta2_max_deg.to_radians(),
             dbank1_max_rad: config.dbank1_max_deg.to_radians(),
+            dphi_low_rad: config.dphi_low_deg.to_radians(),
+            dphi1_max_rad: config.dphi1_max_deg.to_radians(),
             mode: config.mode,
             pitch_rule: config.pitch_rule,
         })
@@ -286,6 +316,10 @@ impl ActivationRules {
     /// shortened so that `|Δθ°°_h + Δθ°°_θ| ≤ Δθ°°_1,MAX`.
     #[must_use]
     pub fn pitch_term_rad(&self, dtheta_rad: f64, altitude_term_rad: f64) -> f64 {
+        if self.mode == AdjustmentMode::Slerp {
+            // The SLERP towards the INS attitude is this mode's proportional term.
+            return 0.0;
+        }
         let raw = -sign(dtheta_rad) * self.dtheta1_max_rad * ramp(dtheta_rad, self.dtheta_low_rad);
         let agree = sign(raw) * sign(altitude_term_rad) >= 0.0;
         let keep = match self.pitch_rule {
@@ -315,14 +349,26 @@ impl ActivationRules {
     }
 
     /// `Δξ°° = −sign(Δξ)·Δξ°°_1,MAX·ramp(Δξ, Δξ_LOW)`, rad, in pitch-and-bank mode; 0 in pitch
-    /// mode.
+    /// and SLERP modes.
     #[must_use]
     pub fn bank_term_rad(&self, dbank_rad: f64) -> f64 {
         match self.mode {
-            AdjustmentMode::Pitch => 0.0,
+            AdjustmentMode::Pitch | AdjustmentMode::Slerp => 0.0,
             AdjustmentMode::PitchBank => {
                 -sign(dbank_rad) * self.dbank1_max_rad * ramp(dbank_rad, self.dbank_low_rad)
             }
+        }
+    }
+
+    /// `Δφ°° = min(Δφ°°_1,MAX·ramp(Δφ**, Δφ_LOW), Δφ**)`, rad, in SLERP mode (never past the
+    /// INS attitude); 0 in the paper's modes.
+    #[must_use]
+    pub fn slerp_term_rad(&self, dphi_rad: f64) -> f64 {
+        match self.mode {
+            AdjustmentMode::Slerp => {
+                (self.dphi1_max_rad * ramp(dphi_rad, self.dphi_low_rad)).min(dphi_rad.abs())
+            }
+            AdjustmentMode::Pitch | AdjustmentMode::PitchBank => 0.0,
         }
     }
 
@@ -344,6 +390,7 @@ impl ActivationRules {
             roc_term_rad,
             pitch_rad: altitude_term_rad + pitch_term_rad + roc_term_rad,
             bank_rad: self.bank_term_rad(errors.dbank_rad),
+            slerp_rad: self.slerp_term_rad(errors.dphi_rad),
             droc_mps,
         })
     }
@@ -458,6 +505,7 @@ mod tests {
             dh_m,
             dtheta_rad: dtheta_deg.to_radians(),
             dbank_rad: dbank_deg.to_radians(),
+            dphi_rad: 0.0,
         }
     }
 
@@ -751,6 +799,60 @@ mod tests {
         assert_eq!(act.window_len(), 2);
     }
 
+    /// The SLERP mode (beyond the paper): `Δφ°°` is the proportional ramp on the whole attitude
+    /// error, capped at the error itself; the pitch and bank proportional terms are off and
+    /// the altitude and rate-of-climb terms still act on the pitch.
+    #[test]
+    fn slerp_mode_ramps_the_whole_attitude_error_and_keeps_the_altitude_term() {
+        let r = rules(AdjustmentMode::Slerp, PitchRule::ReadingB);
+        let with_phi = |dh_m: f64, dphi_deg: f64| AdjustmentErrors {
+            dphi_rad: dphi_deg.to_radians(),
+            ..errors(dh_m, 0.5, 0.5)
+        };
+        // Δφ** in its dead band (≤ 0.2°): no rotation; at 0.3° half of 0.0005°; beyond 0.4°
+        // saturated.
+        for (dphi_deg, expected_deg) in [
+            (0.1, 0.0),
+            (0.2, 0.0),
+            (0.3, 0.00025),
+            (0.4, 0.0005),
+            (3.0, 0.0005),
+        ] {
+            let a = r.evaluate(&with_phi(0.0, dphi_deg), 0.0).expect("finite");
+            assert_deg(
+                a.slerp_rad,
+                expected_deg,
+                &format!("Δφ°° at Δφ** = {dphi_deg}°"),
+            );
+            // The 0.5° pitch and bank errors would drive the paper's modes: not this one.
+            assert_deg(a.pitch_term_rad, 0.0, "Δθ°°_θ");
+            assert_deg(a.bank_rad, 0.0, "Δξ°°");
+            assert_eq!(a.is_active(), expected_deg > 0.0);
+        }
+        // Never past the INS attitude: with no dead band, a tiny error is closed exactly.
+        let step = ActivationRules::new(&ActivationConfig {
+            mode: AdjustmentMode::Slerp,
+            dphi_low_deg: 0.0,
+            ..ActivationConfig::default()
+        })
+        .expect("valid config");
+        let a = step.evaluate(&with_phi(0.0, 0.0001), 0.0).expect("finite");
+        assert_deg(a.slerp_rad, 0.0001, "Δφ°° capped at Δφ**");
+        // The altitude term: 60 m above the INS (past 2·Δh_LOW) pitches down by Δθ°°_1,MAX.
+        let a = r.evaluate(&with_phi(60.0, 0.0), 0.0).expect("finite");
+        assert_deg(a.altitude_term_rad, -0.0005, "Δθ°°_h");
+        assert_deg(a.pitch_rad, -0.0005, "Δθ°°");
+        assert!(a.is_active());
+        // The paper's modes ignore Δφ**.
+        let pb = rules(AdjustmentMode::PitchBank, PitchRule::ReadingB);
+        assert_eq!(
+            pb.evaluate(&with_phi(0.0, 3.0), 0.0)
+                .expect("finite")
+                .slerp_rad,
+            0.0
+        );
+    }
+
     #[test]
     fn non_finite_input_rejected_without_changing_state() {
         let mut act = Activation::new(ActivationConfig::default()).expect("valid config");
@@ -770,6 +872,10 @@ mod tests {
                 },
                 AdjustmentErrors {
                     dbank_rad: bad,
+                    ..good
+                },
+                AdjustmentErrors {
+                    dphi_rad: bad,
                     ..good
                 },
             ] {
@@ -891,14 +997,18 @@ mod tests {
             dtheta_rad in finite(),
             droc_mps in finite(),
             dbank_rad in finite(),
+            dphi_rad in finite(),
             reading_a in any::<bool>(),
-            pitch_only in any::<bool>(),
+            mode_index in 0..3_usize,
         ) {
-            let mode = if pitch_only { AdjustmentMode::Pitch } else { AdjustmentMode::PitchBank };
+            let mode = [AdjustmentMode::Pitch, AdjustmentMode::PitchBank, AdjustmentMode::Slerp][mode_index];
             let rule = if reading_a { PitchRule::ReadingA } else { PitchRule::ReadingB };
             let r = rules(mode, rule);
-            let e = AdjustmentErrors { dh_m, dtheta_rad, dbank_rad };
+            let e = AdjustmentErrors { dh_m, dtheta_rad, dbank_rad, dphi_rad };
             let a = r.evaluate(&e, droc_mps).expect("finite inputs");
+            // Never past the INS attitude, never beyond its limit.
+            prop_assert!(a.slerp_rad >= 0.0 && a.slerp_rad <= 0.0005_f64.to_radians());
+            prop_assert!(a.slerp_rad <= dphi_rad.abs());
             // The relative slack covers one rounding of the combined-limit subtraction.
             let pitch_max = (0.0005_f64 + 0.0003).to_radians() * (1.0 + 1e-12);
             let bank_max = 0.0003_f64.to_radians();

@@ -144,6 +144,30 @@ pub fn target_q_ec(
     body.q_en * q_nb_target * q_bc
 }
 
+/// The SLERP mode's target camera attitude (beyond the paper; its eq.
+/// `nav_vis_assist_priors_activation_pitch_atttitude`): the visual body attitude turned by
+/// `slerp_rad` towards the INS attitude `q_nb_ins` along the geodesic,
+/// `q** ⊗ Exp(t·Log(q**⁻¹ ⊗ q̂))` with `t = Δφ°°/Δφ**` (at most 1), then its pitch moved by
+/// `dpitch_rad` (the altitude and rate-of-climb terms), seen through the frozen `q_en**`.
+pub fn target_q_ec_slerp(
+    body: &VisualBodyPose,
+    q_nb_ins: &UnitQuaternion<f64>,
+    slerp_rad: f64,
+    dpitch_rad: f64,
+    q_bc: &UnitQuaternion<f64>,
+) -> UnitQuaternion<f64> {
+    let dr = so3::log(&(body.q_nb.inverse() * q_nb_ins));
+    let dphi = dr.norm();
+    let turned = if dphi > 0.0 {
+        body.q_nb * so3::exp(&(dr * (slerp_rad / dphi).min(1.0)))
+    } else {
+        body.q_nb
+    };
+    let e = so3::euler_zyx(&turned);
+    let q_nb_target = so3::from_euler_zyx(e[0], e[1] + dpitch_rad, e[2]);
+    body.q_en * q_nb_target * q_bc
+}
+
 /// The attitude adjustment error `E_q` of `q_ec` against `target` and its Jacobian with
 /// respect to the right perturbation `q_ec ∘ Exp(δθ)` (eq.
 /// `nav_vis_assist_pose_optim_pitch_objective`; `J_R⁻¹` of eq.
@@ -338,6 +362,53 @@ mod tests {
         let q_nb = body.q_en.inverse() * target * zeta_bc.rotation.inverse();
         let e = so3::euler_zyx(&q_nb) - body.euler_rad;
         assert!((e - Vector3::new(0.0, dp, db)).amax() < 1e-13, "{e:?}");
+    }
+
+    /// The SLERP target lies on the geodesic from the visual attitude to the INS's, `Δφ°°`
+    /// from the first and `Δφ** − Δφ°°` from the second (yaw included), never past the INS's;
+    /// the altitude term's pitch is added on top.
+    #[test]
+    fn the_slerp_target_turns_along_the_geodesic_towards_the_ins() {
+        let (zeta_ec, zeta_bc) = nadir_pose(1.2, 0.02, -0.05);
+        let body = VisualBodyPose::from_camera(&zeta_ec, &zeta_bc);
+        let q_ins = body.q_nb * so3::exp(&Vector3::new(2e-3, -1e-3, 4e-3));
+        let dphi = body.q_nb.angle_to(&q_ins);
+        let body_of =
+            |q_ec: UnitQuaternion<f64>| body.q_en.inverse() * q_ec * zeta_bc.rotation.inverse();
+        let slerp = 1e-3;
+        let target = body_of(target_q_ec_slerp(
+            &body,
+            &q_ins,
+            slerp,
+            0.0,
+            &zeta_bc.rotation,
+        ));
+        assert!((body.q_nb.angle_to(&target) - slerp).abs() < 1e-12);
+        assert!((target.angle_to(&q_ins) - (dphi - slerp)).abs() < 1e-12);
+        // The yaw moves too (the INS is 4 mrad off about the body's z axis, mostly yaw).
+        let dyaw = so3::euler_zyx(&target)[0] - body.euler_rad[0];
+        assert!(dyaw.abs() > 1e-4, "{dyaw}");
+        // Capped at the INS attitude.
+        let past = body_of(target_q_ec_slerp(
+            &body,
+            &q_ins,
+            1.0,
+            0.0,
+            &zeta_bc.rotation,
+        ));
+        assert!(past.angle_to(&q_ins) < 1e-12);
+        // Zero rotation and zero pitch: the visual attitude itself; the pitch adds on top.
+        let same = target_q_ec_slerp(&body, &q_ins, 0.0, 0.0, &zeta_bc.rotation);
+        assert!(same.angle_to(&zeta_ec.rotation) < 1e-14);
+        let pitched = body_of(target_q_ec_slerp(
+            &body,
+            &q_ins,
+            0.0,
+            1e-5,
+            &zeta_bc.rotation,
+        ));
+        let e = so3::euler_zyx(&pitched) - body.euler_rad;
+        assert!((e - Vector3::new(0.0, 1e-5, 0.0)).amax() < 1e-13, "{e:?}");
     }
 
     /// The Jacobian of `E_q` is its derivative with respect to the right perturbation, in both

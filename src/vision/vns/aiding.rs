@@ -23,10 +23,10 @@ use super::tracking::Attempt;
 use crate::math::so3;
 use crate::vision::homography::PlaneMotion;
 use crate::vision::iavns::activation::{
-    Activation, ActivationConfig, ActivationError, Adjustment, AdjustmentErrors,
+    Activation, ActivationConfig, ActivationError, Adjustment, AdjustmentErrors, AdjustmentMode,
 };
 use crate::vision::iavns::prior::{
-    AttitudePrior, JointStart, PriorConfig, VisualBodyPose, target_q_ec,
+    AttitudePrior, JointStart, PriorConfig, VisualBodyPose, target_q_ec, target_q_ec_slerp,
 };
 use crate::vision::pose_opt::optimize_pose;
 
@@ -232,6 +232,7 @@ impl Vns {
             dh_m: body.h_m() - ins.h_m,
             dtheta_rad: body.euler_rad[1] - ins_euler[1],
             dbank_rad: angle_difference(body.euler_rad[2], ins_euler[2]),
+            dphi_rad: so3::log(&(body.q_nb.inverse() * ins.q_nb)).norm(),
         };
         state.counters.activations_evaluated += 1;
         let adjustment = match state.activation.update(t_us, &errors) {
@@ -246,12 +247,21 @@ impl Vns {
             return;
         }
         state.counters.priors_active += 1;
-        let target = target_q_ec(
-            &body,
-            adjustment.pitch_rad,
-            adjustment.bank_rad,
-            &ins.zeta_bc.rotation,
-        );
+        let target = match self.cfg.aiding.activation.mode {
+            AdjustmentMode::Slerp => target_q_ec_slerp(
+                &body,
+                &ins.q_nb,
+                adjustment.slerp_rad,
+                adjustment.pitch_rad,
+                &ins.zeta_bc.rotation,
+            ),
+            AdjustmentMode::Pitch | AdjustmentMode::PitchBank => target_q_ec(
+                &body,
+                adjustment.pitch_rad,
+                adjustment.bank_rad,
+                &ins.zeta_bc.rotation,
+            ),
+        };
         let prior_cfg = self.cfg.aiding.prior;
         let joint = AttitudePrior::at_initial_pose(
             &self.camera,
