@@ -135,6 +135,20 @@ enum Command {
         #[arg(long)]
         out: Option<PathBuf>,
     },
+    /// One of the paper's result tables, ours beside the paper's numbers (Markdown): the
+    /// MX tables take `1=DIR` and/or `2=DIR` (scenario #1, #2), the terrain tables `ZONE=DIR`
+    /// (e.g. `mx=DIR fr=DIR`); each DIR as for `report`.
+    Table {
+        /// Which table.
+        #[arg(value_enum)]
+        table: ianav_sim::report::PaperTable,
+        /// `LABEL=DIR` pairs.
+        #[arg(required = true)]
+        inputs: Vec<String>,
+        /// Also write the table to this file.
+        #[arg(long)]
+        out: Option<PathBuf>,
+    },
 }
 
 /// Options of `mc`.
@@ -283,5 +297,6 @@ fn main() -> Result<()> {
         Command::Render(args) => cmd::render::render(args),
         Command::Sitl(args) => cmd::sitl::sitl(args),
         Command::Report { dirs, out } => cmd::report::report(dirs, out.as_ref()),
+        Command::Table { table, inputs, out } => cmd::report::table(*table, inputs, out.as_ref()),
     }
 }

@@ -1,5 +1,6 @@
 //! `ianav-sim report`: the navigation-error tables and plots (the paper's INSE tables and
-//! error figures, `ianav_sim::report`) of one or several `mc` directories.
+//! error figures, `ianav_sim::report`) of one or several `mc` directories; `ianav-sim table`:
+//! one of the paper's result tables beside its printed numbers.
 
 use std::path::PathBuf;
 use std::time::Instant;
@@ -19,5 +20,46 @@ pub(crate) fn report(dirs: &[PathBuf], out: Option<&PathBuf>) -> Result<()> {
         started.elapsed().as_secs_f64(),
         summary.report_path.display()
     );
+    Ok(())
+}
+
+pub(crate) fn table(
+    kind: ianav_sim::report::PaperTable,
+    inputs: &[String],
+    out: Option<&PathBuf>,
+) -> Result<()> {
+    use ianav_sim::report::PaperTable;
+    let mx = matches!(
+        kind,
+        PaperTable::Attitude | PaperTable::Altitude | PaperTable::Horizontal
+    );
+    let mut loaded = Vec::new();
+    for input in inputs {
+        let Some((label, dir)) = input.split_once('=') else {
+            bail!("`{input}`: expected LABEL=DIR");
+        };
+        let ok = if mx {
+            matches!(label, "1" | "2")
+        } else {
+            label.parse::<ianav_sim::terrain::Zone>().is_ok()
+        };
+        if !ok {
+            bail!(
+                "`{input}`: the label must be {}",
+                if mx {
+                    "1 or 2 (the scenario)"
+                } else {
+                    "a zone code (ds, fm, fr, mx, pr, ur)"
+                }
+            );
+        }
+        let runs = ianav_sim::report::load_runs(&[PathBuf::from(dir)])?;
+        loaded.push((label.to_lowercase(), runs));
+    }
+    let md = ianav_sim::report::paper_table(kind, &loaded);
+    print!("{md}");
+    if let Some(path) = out {
+        std::fs::write(path, &md).map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?;
+    }
     Ok(())
 }

@@ -18,8 +18,10 @@ use crate::metrics::{NseSample, format_fixed};
 use crate::montecarlo::{RUNS_DIR, RunOutcome, RunRecord};
 use crate::plots::{self, Chart, PALETTE, Series};
 
+mod tables;
 mod vision;
 
+pub use tables::{PaperTable, paper_table};
 pub use vision::{display_name, system_colour};
 
 /// The report file.
