@@ -90,9 +90,19 @@ pub(crate) fn setup(args: &SetupArgs) -> Result<FlightSetup> {
         setup.scenario.start.lat_deg = start.lat_deg;
         setup.scenario.start.lon_deg = start.lon_deg;
         let terrain = ianav_sim::terrain::Terrain::new(zone, args.terrain_seed);
-        setup.camera = Some(ianav_sim::flight::CameraSetup::new(std::sync::Arc::new(
-            terrain,
-        )));
+        let mut camera = ianav_sim::flight::CameraSetup::new(std::sync::Arc::new(terrain));
+        if let Some((path, text)) = read_optional(dir, "camera.toml")? {
+            let settings = ianav::vision::camera::CameraSettings::from_toml_str(&text)
+                .with_context(|| path.display().to_string())?;
+            camera.camera = settings.camera;
+            camera.mounting = settings.mounting;
+        }
+        setup.camera = Some(camera);
+    } else if let Some((path, _)) = read_optional(dir, "camera.toml")? {
+        eprintln!(
+            "note: {} is read only with --terrain (no camera on this flight)",
+            path.display()
+        );
     }
     setup.scenario.validate()?;
     Ok(setup)
