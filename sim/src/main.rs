@@ -95,8 +95,8 @@ enum Command {
         /// Do not write the sensor sample log.
         #[arg(long)]
         no_sensor_log: bool,
-        /// Save camera frames (with --terrain) as PNG files in this directory; frames are
-        /// not written to the sensor log.
+        /// Save camera frames (with --terrain) as PNG files in this directory (frames never go
+        /// into the sensor log of `run`: 0.8 MB each).
         #[arg(long, requires = "terrain")]
         frames: Option<PathBuf>,
         /// Save every N-th frame only (with --frames).

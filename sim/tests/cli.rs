@@ -129,6 +129,49 @@ fn bench_vns_times_every_frame_and_needs_a_camera() {
         .unwrap();
     assert_eq!(all.split_whitespace().nth(1), Some("31"), "{all}");
     assert!(stdout.contains("0 bad frames"), "{stdout}");
+    // Each system is timed alone.
+    for system in ["vns", "ia-vns"] {
+        assert!(
+            stdout.contains(&format!("{system}: time per frame")),
+            "{stdout}"
+        );
+    }
+}
+
+/// A camera `run` (the README's main job, shortened) writes every visual system's rows and
+/// the report's section; frames stay out of the sensor log.
+#[test]
+fn a_camera_run_reports_every_visual_system() {
+    let dir = temp_dir("camera-run");
+    let out = ianav_sim(&[
+        "run",
+        "--scenario",
+        "2",
+        "--duration",
+        "5",
+        "--terrain",
+        "ur",
+        "--out",
+        dir.to_str().unwrap(),
+    ]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let csv = std::fs::read_to_string(dir.join("vision.csv")).unwrap();
+    for system in ["vns", "ia-vns"] {
+        assert!(
+            csv.contains(&format!(",{system},tracking,")),
+            "{system}: {csv}"
+        );
+    }
+    let report = std::fs::read_to_string(dir.join("report.md")).unwrap();
+    assert!(report.contains("| IA-VNS | tracking |"), "{report}");
+    // 51 frames of 768 × 1024 would be 40 MB: the log holds no frames.
+    let log = std::fs::metadata(dir.join("sensors.bin")).unwrap().len();
+    assert!(log < 3_000_000, "{log} bytes");
+    std::fs::remove_dir_all(&dir).unwrap();
 }
 
 #[test]

@@ -64,6 +64,14 @@ impl<O: ianav_sim::flight::FlightObserver> ianav_sim::flight::FlightObserver for
     ) {
         self.inner.nav_solution(truth, solution);
     }
+    fn vision_outputs(
+        &mut self,
+        truth: &ianav_sim::flight::TruthSample,
+        t_us: u64,
+        systems: &[ianav_sim::flight::VisionOutput],
+    ) {
+        self.inner.vision_outputs(truth, t_us, systems);
+    }
     fn operation_started(
         &mut self,
         t_s: f64,
