@@ -188,12 +188,46 @@ fn printed(p: Printed, d: usize) -> [String; 3] {
     })
 }
 
-/// Rows `stat`, `stat (paper)` for the three statistics, from per-column ours and the paper's.
-fn interleaved(md: &mut String, ours: &[[String; 3]], paper: &[[String; 3]]) {
+/// Rows `{prefix}stat`, `{prefix}stat (paper)` for the three statistics, from per-column ours
+/// and the paper's.
+fn interleaved(md: &mut String, prefix: &str, ours: &[[String; 3]], paper: &[[String; 3]]) {
     for (k, stat) in ["mean", "std", "max"].iter().enumerate() {
         let row = |cols: &[[String; 3]]| cols.iter().map(|c| c[k].clone()).collect::<Vec<_>>();
-        let _ = writeln!(md, "| {stat} | {} |", row(ours).join(" | "));
-        let _ = writeln!(md, "| {stat} (paper) | {} |", row(paper).join(" | "));
+        let _ = writeln!(md, "| {prefix}{stat} | {} |", row(ours).join(" | "));
+        let _ = writeln!(
+            md,
+            "| {prefix}{stat} (paper) | {} |",
+            row(paper).join(" | ")
+        );
+    }
+}
+
+/// Columns per scenario (ours, the paper's).
+type ScenarioColumns = (Vec<[String; 3]>, Vec<[String; 3]>);
+
+/// A table with one block of rows per scenario present under `header`, then each scenario's
+/// population.
+fn scenario_rows(
+    md: &mut String,
+    header: &str,
+    inputs: &[(String, Vec<RunRecord>)],
+    columns: impl Fn(usize, &Finals) -> ScenarioColumns,
+) {
+    let _ = writeln!(md, "{header}");
+    let present: Vec<(usize, Finals)> = [1, 2]
+        .into_iter()
+        .filter_map(|n| {
+            let (_, runs) = inputs.iter().find(|(l, _)| *l == n.to_string())?;
+            Some((n, finals(runs)))
+        })
+        .collect();
+    for (n, f) in &present {
+        let (ours, paper) = columns(*n, f);
+        interleaved(md, &format!("#{n} "), &ours, &paper);
+    }
+    md.push('\n');
+    for (n, f) in &present {
+        population(md, &format!("Scenario #{n}"), f);
     }
 }
 
@@ -246,73 +280,43 @@ pub fn paper_table(kind: PaperTable, inputs: &[(String, Vec<RunRecord>)]) -> Str
                             .map(|(k, p)| printed(*p, if k == 3 { 3 } else { 2 }))
                     })
                     .collect();
-                interleaved(&mut md, &ours, &paper);
+                interleaved(&mut md, "", &ours, &paper);
                 md.push('\n');
             }
         }
-        PaperTable::Altitude => {
-            let _ = writeln!(
-                md,
-                "| scenario, stat | INS Δh [m] | VNS Δh [m] | IA-VNS Δh [m] |\n|---|---|---|---|"
-            );
-            for n in [1, 2] {
-                let Some((_, runs)) = scenario(n) else {
-                    continue;
-                };
-                let f = finals(runs);
-                let ours: Vec<[String; 3]> = (0..3)
-                    .map(|sys| cells(column(&f, sys, |s| s.alt_m), 2))
+        PaperTable::Altitude => scenario_rows(
+            &mut md,
+            "| scenario, stat | INS Δh [m] | VNS Δh [m] | IA-VNS Δh [m] |\n|---|---|---|---|",
+            inputs,
+            |n, f| {
+                let ours = (0..3)
+                    .map(|sys| cells(column(f, sys, |s| s.alt_m), 2))
                     .collect();
-                let paper: Vec<[String; 3]> = PAPER_ALTITUDE[n - 1]
+                let paper = PAPER_ALTITUDE[n - 1]
                     .iter()
                     .map(|p| printed(*p, 2))
                     .collect();
-                let mut block = String::new();
-                interleaved(&mut block, &ours, &paper);
-                for line in block.lines() {
-                    let _ = writeln!(md, "{}", line.replacen("| ", &format!("| #{n} "), 1));
-                }
-            }
-            md.push('\n');
-            for n in [1, 2] {
-                if let Some((_, runs)) = scenario(n) {
-                    population(&mut md, &format!("Scenario #{n}"), &finals(runs));
-                }
-            }
-        }
-        PaperTable::Horizontal => {
-            let _ = writeln!(
-                md,
-                "| scenario, stat | distance [m] | INS [m] | INS [%] | VNS [m] | VNS [%] | IA-VNS [m] | IA-VNS [%] |\n|---|---|---|---|---|---|---|---|"
-            );
-            for n in [1, 2] {
-                let Some((_, runs)) = scenario(n) else {
-                    continue;
-                };
-                let f = finals(runs);
-                let mut ours = vec![cells(column(&f, 0, |s| s.distance_m), 0)];
+                (ours, paper)
+            },
+        ),
+        PaperTable::Horizontal => scenario_rows(
+            &mut md,
+            "| scenario, stat | distance [m] | INS [m] | INS [%] | VNS [m] | VNS [%] | IA-VNS [m] | IA-VNS [%] |\n|---|---|---|---|---|---|---|---|",
+            inputs,
+            |n, f| {
+                let mut ours = vec![cells(column(f, 0, |s| s.distance_m), 0)];
                 for sys in 0..3 {
-                    ours.push(cells(column(&f, sys, |s| s.hor_m), 0));
-                    ours.push(cells(column(&f, sys, |s| s.hor_pct), 2));
+                    ours.push(cells(column(f, sys, |s| s.hor_m), 0));
+                    ours.push(cells(column(f, sys, |s| s.hor_pct), 2));
                 }
-                let paper: Vec<[String; 3]> = PAPER_HORIZONTAL[n - 1]
+                let paper = PAPER_HORIZONTAL[n - 1]
                     .iter()
                     .enumerate()
                     .map(|(k, p)| printed(*p, if k > 0 && k % 2 == 0 { 2 } else { 0 }))
                     .collect();
-                let mut block = String::new();
-                interleaved(&mut block, &ours, &paper);
-                for line in block.lines() {
-                    let _ = writeln!(md, "{}", line.replacen("| ", &format!("| #{n} "), 1));
-                }
-            }
-            md.push('\n');
-            for n in [1, 2] {
-                if let Some((_, runs)) = scenario(n) {
-                    population(&mut md, &format!("Scenario #{n}"), &finals(runs));
-                }
-            }
-        }
+                (ours, paper)
+            },
+        ),
         PaperTable::Terrain1 | PaperTable::Terrain2 => {
             let zones: &[(&str, Printed, Printed)] = if kind == PaperTable::Terrain1 {
                 &PAPER_TERRAIN1
@@ -351,7 +355,7 @@ pub fn paper_table(kind: PaperTable, inputs: &[(String, Vec<RunRecord>)]) -> Str
                     f.flown
                 ));
             }
-            interleaved(&mut md, &ours, &paper);
+            interleaved(&mut md, "", &ours, &paper);
             let _ = writeln!(
                 md,
                 "\nRuns whose IA-VNS tracks at t_end, of those flown: {}.\n",
