@@ -9,7 +9,10 @@
 //! `IANAV_BLESS=1 cargo test -p ianav-sim --profile ci --test vision_golden` and say in the
 //! commit why it changed (docs/REPLAY.md).
 
-#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 use std::fmt::Write as _;
 use std::path::Path;
