@@ -1,0 +1,412 @@
+//! The ground points of a block of image rows: every other row and column intersected
+//! exactly, predicted from the solved pixels above, the points between as midpoints of their
+//! neighbours'; every pixel exact without interpolation.
+
+use super::RenderStats;
+use super::intersect::{Scene, fast_quad, intersect};
+use super::rays::{Ray, RowRays};
+
+/// Pixel-to-pixel memory of a row: the last two solutions' depths.
+#[derive(Debug, Clone, Copy, Default)]
+pub(super) struct Pred {
+    pub(super) t1: Option<f64>,
+    pub(super) t2: Option<f64>,
+}
+
+impl Pred {
+    /// Linear extrapolation of the depth from the last two pixels (or the last one).
+    pub(super) fn guess(&self) -> Option<f64> {
+        match (self.t1, self.t2) {
+            (Some(a), Some(b)) => Some(2.0 * a - b),
+            (Some(a), None) => Some(a),
+            _ => None,
+        }
+    }
+    pub(super) fn push(&mut self, t: f64) {
+        self.t2 = self.t1;
+        self.t1 = Some(t);
+    }
+}
+
+/// Ground points of a block of rows: depth along the optical axis (NaN for sky) and texture
+/// offsets from the camera, row after row.
+pub(super) struct GroundBlock {
+    pub(super) t: Vec<f64>,
+    pub(super) x: Vec<f64>,
+    pub(super) y: Vec<f64>,
+    pub(super) wu: usize,
+    /// Level of detail of one row at every 4th column (NaN for sky).
+    pub(super) lod: Vec<f64>,
+    /// Grey levels of one row before noise and rounding.
+    pub(super) vals: Vec<f32>,
+}
+
+impl GroundBlock {
+    pub(super) fn new(wu: usize, rows: usize) -> Self {
+        Self {
+            t: vec![f64::NAN; wu * rows],
+            x: vec![0.0; wu * rows],
+            y: vec![0.0; wu * rows],
+            wu,
+            lod: Vec::with_capacity(wu.div_ceil(4)),
+            vals: Vec::with_capacity(wu),
+        }
+    }
+
+    pub(super) fn row(&self, r: usize) -> (&[f64], &[f64], &[f64]) {
+        let k = r * self.wu..(r + 1) * self.wu;
+        (&self.t[k.clone()], &self.x[k.clone()], &self.y[k])
+    }
+
+    pub(super) fn set(&mut self, k: usize, (t, x, y): (f64, f64, f64)) {
+        self.t[k] = t;
+        self.x[k] = x;
+        self.y[k] = y;
+    }
+
+    /// Row `r` as the midpoints of rows `r − 1` and `r + 1`, in branch-free (vectorised) loops.
+    /// A ground depth is finite, so the midpoint depth is NaN exactly where a neighbour is sky;
+    /// returns whether the row has such pixels (the caller solves them).
+    pub(super) fn mid_row(&mut self, r: usize) -> bool {
+        let wu = self.wu;
+        for a in [&mut self.t, &mut self.x, &mut self.y] {
+            let (head, tail) = a.split_at_mut(r * wu);
+            let above = &head[(r - 1) * wu..];
+            let (row, below) = tail.split_at_mut(wu);
+            for ((m, &p), &q) in row.iter_mut().zip(above).zip(&below[..wu]) {
+                *m = 0.5 * (p + q);
+            }
+        }
+        any_nan(&self.t[r * wu..(r + 1) * wu])
+    }
+
+    /// The odd columns of row `r` as the midpoints of their even neighbours (but the last
+    /// column), branch-free; returns whether any of them has a sky neighbour (NaN depth).
+    pub(super) fn mid_odd_columns(&mut self, r: usize) -> bool {
+        let row = r * self.wu..(r + 1) * self.wu;
+        for a in [&mut self.t, &mut self.x, &mut self.y] {
+            let a = &mut a[row.clone()];
+            for col in (1..a.len().saturating_sub(1)).step_by(2) {
+                a[col] = 0.5 * (a[col - 1] + a[col + 1]);
+            }
+        }
+        any_nan(&self.t[row])
+    }
+}
+
+/// Whether any value is NaN (a fold without early exit, so it vectorises).
+#[inline]
+pub(super) fn any_nan(a: &[f64]) -> bool {
+    a.iter().fold(false, |any, v| any | v.is_nan())
+}
+
+/// The intersection of the rays of a block of rows with the terrain.
+///
+/// With interpolation, the rays of every other row and column are intersected exactly and
+/// the ground points in between are the midpoints of their neighbours'. On a monotone frame
+/// the ground point is a continuous function of the pixel whose derivative only jumps where
+/// the ray's trace crosses an 8 m lattice edge of the bilinear height field, so over a 2-px
+/// span (≈ 5 m at 2,700 m) the midpoint is off by at most a quarter of the span times that
+/// jump: at 25° off nadir and a slope change of 0.2 across an edge, ~0.1 m on the ground
+/// (0.05 px); on gentle terrain millimetres. Without interpolation every pixel is exact.
+pub(super) struct BlockGeometry<'a, F: Fn(f64) -> RowRays> {
+    pub(super) rays_of_row: &'a F,
+    pub(super) scene: &'a Scene<'a>,
+    pub(super) wu: usize,
+}
+
+impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
+    /// Exact intersections of row `r` (image row `v`) at every `step`-th column and the last
+    /// one, predicted from the block's rows `r − gap` and `r − 2 gap` when they exist, else
+    /// from the pixels to the left; with `step` 2 the columns between are midpoints (or exact
+    /// where a neighbour is sky).
+    pub(super) fn solve_row(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        v: usize,
+        step: usize,
+        gap: usize,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let rays = (self.rays_of_row)(v as f64);
+        let mut pred = Pred::default();
+        let mut col = 0;
+        while col < wu {
+            self.solve_at(blk, r, gap, &rays, col, &mut pred, st);
+            col = next_col(col, step, wu);
+        }
+        if step == 2 {
+            self.fill_odd(blk, r, gap, &rays, st);
+        }
+    }
+
+    /// [`Self::solve_row`] with step 2 and gap 2 for the rows `rs` (block rows 2 apart, each
+    /// predicted from the one before), their columns taken in turn. Row 0 of a block is
+    /// predicted from the left only, one long chain of dependent solves; the solves of the
+    /// rows below it hang off that chain without lengthening it, so the CPU overlaps them.
+    /// Each solve sees the same guess as in row order: the same values. Rows below the block's
+    /// first are solved four columns at a time ([`Self::solve_quad`]).
+    pub(super) fn solve_rows(
+        &self,
+        blk: &mut GroundBlock,
+        rs: &[usize],
+        v0: usize,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let n = rs.len().min(JOINT_ROWS);
+        if n == 0 {
+            return;
+        }
+        let rays: [RowRays; JOINT_ROWS] =
+            std::array::from_fn(|i| (self.rays_of_row)((v0 + rs[i.min(n - 1)]) as f64));
+        let mut preds = [Pred::default(); JOINT_ROWS];
+        // Quads of solved columns (8 image columns), then the rest one by one.
+        let quads = wu / 8;
+        for q in 0..quads {
+            for i in 0..n {
+                if rs[i] >= 2 {
+                    self.solve_quad(blk, rs[i], &rays[i], 8 * q, &mut preds[i], st);
+                } else {
+                    for col in (8 * q..8 * q + 8).step_by(2) {
+                        self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
+                    }
+                }
+            }
+        }
+        // The column after the quads' last (the image's last column is always solved).
+        let mut col = if quads == 0 {
+            0
+        } else {
+            next_col(8 * quads - 2, 2, wu)
+        };
+        while col < wu {
+            for i in 0..n {
+                self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
+            }
+            col = next_col(col, 2, wu);
+        }
+        for i in 0..n {
+            self.fill_odd(blk, rs[i], 2, &rays[i], st);
+        }
+    }
+
+    /// [`Self::solve_at`] (gap 2) of row `r ≥ 2` at the columns `col0, col0 + 2, col0 + 4,
+    /// col0 + 6`, the same values: when all four are predicted from above (their guesses then
+    /// do not depend on one another), their fast paths run side by side in straight-line code
+    /// (independent chains the CPU overlaps, partly in vector registers); a column whose fast
+    /// path fails is solved by [`intersect`] from its guess, as alone. Otherwise (sky above) the
+    /// columns are solved one by one.
+    #[inline(always)]
+    pub(super) fn solve_quad(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        rays: &RowRays,
+        col0: usize,
+        pred: &mut Pred,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let cols = [col0, col0 + 2, col0 + 4, col0 + 6];
+        let a1 = cols.map(|c| self.above(blk, r, 2, c, 1));
+        if r < 2 || a1.iter().any(|t| t.is_nan()) {
+            for c in cols {
+                self.solve_at(blk, r, 2, rays, c, pred, st);
+            }
+            return;
+        }
+        let a2 = cols.map(|c| self.above(blk, r, 2, c, 2));
+        // `predict` with a ground pixel above.
+        let guess: [f64; 4] = std::array::from_fn(|i| {
+            if a2[i].is_nan() {
+                a1[i]
+            } else {
+                2.0 * a1[i] - a2[i]
+            }
+        });
+        let fast = fast_quad(rays, &cols, &guess, self.scene.table);
+        for i in 0..4 {
+            let sol = match fast[i] {
+                Some(sol) => {
+                    st.height_lookups += 1;
+                    Some(sol)
+                }
+                None => intersect(&rays.at(cols[i] as f64), self.scene, Some(guess[i]), st),
+            };
+            match sol {
+                Some((t, _, _)) => pred.push(t),
+                None => *pred = Pred::default(),
+            }
+            blk.set(r * wu + cols[i], sol.unwrap_or((f64::NAN, 0.0, 0.0)));
+        }
+    }
+
+    /// Depth of row `r` at `gap · k` rows above, NaN when outside the block.
+    #[inline(always)]
+    pub(super) fn above(
+        &self,
+        blk: &GroundBlock,
+        r: usize,
+        gap: usize,
+        col: usize,
+        k: usize,
+    ) -> f64 {
+        if r >= k * gap {
+            blk.t[(r - k * gap) * self.wu + col]
+        } else {
+            f64::NAN
+        }
+    }
+
+    /// Exact intersection of row `r` at `col`, predicted from above or from the left.
+    #[inline(always)]
+    #[allow(clippy::too_many_arguments)]
+    pub(super) fn solve_at(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        gap: usize,
+        rays: &RowRays,
+        col: usize,
+        pred: &mut Pred,
+        st: &mut RenderStats,
+    ) {
+        let guess = predict(
+            self.above(blk, r, gap, col, 1),
+            self.above(blk, r, gap, col, 2),
+            pred,
+        );
+        let sol = solve_ray(&rays.at(col as f64), self.scene, guess, pred, st);
+        blk.set(r * self.wu + col, sol);
+    }
+
+    /// Odd columns of row `r` (its even ones solved): midpoints, or exact next to sky.
+    pub(super) fn fill_odd(
+        &self,
+        blk: &mut GroundBlock,
+        r: usize,
+        gap: usize,
+        rays: &RowRays,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let base = r * wu;
+        if !blk.mid_odd_columns(r) {
+            return;
+        }
+        for col in (1..wu.saturating_sub(1)).step_by(2) {
+            if blk.t[base + col].is_nan() {
+                let guess = predict(
+                    self.above(blk, r, gap, col, 1),
+                    self.above(blk, r, gap, col, 2),
+                    &Pred::default(),
+                );
+                blk.set(base + col, self.solve_alone(rays, col, guess, st));
+            }
+        }
+    }
+
+    /// A pixel between two solved ones that could not take their midpoint (one is sky).
+    pub(super) fn solve_alone(
+        &self,
+        rays: &RowRays,
+        col: usize,
+        guess: Option<f64>,
+        st: &mut RenderStats,
+    ) -> (f64, f64, f64) {
+        solve_ray(
+            &rays.at(col as f64),
+            self.scene,
+            guess,
+            &mut Pred::default(),
+            st,
+        )
+    }
+
+    /// Rows `0, 2, 4, …` of the block (image rows from `v0`) solved by [`Self::solve_rows`],
+    /// odd rows as midpoints of the rows above and below (the block's extra last row is the
+    /// first row of the next block, solved here too; the image's last row, when odd, is
+    /// solved directly).
+    pub(super) fn solve_interpolated(
+        &self,
+        blk: &mut GroundBlock,
+        v0: usize,
+        n_rows: usize,
+        image_rows: usize,
+        st: &mut RenderStats,
+    ) {
+        let wu = self.wu;
+        let below_last = v0 + n_rows < image_rows;
+        let extra = (n_rows.is_multiple_of(2) && below_last).then_some(n_rows);
+        let rs: Vec<usize> = (0..n_rows).step_by(2).chain(extra).collect();
+        for g in rs.chunks(JOINT_ROWS) {
+            self.solve_rows(blk, g, v0, st);
+        }
+        for r in (1..n_rows).step_by(2) {
+            if r + 1 >= n_rows && !below_last {
+                self.solve_row(blk, r, v0 + r, 2, 1, st);
+                continue;
+            }
+            if !blk.mid_row(r) {
+                continue;
+            }
+            let rays = (self.rays_of_row)((v0 + r) as f64);
+            for col in 0..wu {
+                let k = r * wu + col;
+                if blk.t[k].is_nan() {
+                    let guess = predict(blk.t[k - wu], f64::NAN, &Pred::default());
+                    blk.set(k, self.solve_alone(&rays, col, guess, st));
+                }
+            }
+        }
+    }
+}
+
+/// Next solved column after `col`: every `step`-th, and the last one.
+#[inline(always)]
+pub(super) fn next_col(col: usize, step: usize, wu: usize) -> usize {
+    if col + step < wu || col + 1 >= wu {
+        col + step
+    } else {
+        wu - 1
+    }
+}
+
+/// Solved rows taken together by [`BlockGeometry::solve_rows`]: all of a 16-row block's (its
+/// even rows and the next block's first). Measured over a flight: 8–10 % less CPU per frame
+/// with all of them, 6 % with pairs.
+pub(super) const JOINT_ROWS: usize = 9;
+
+/// Depth prediction from the two pixels above (`a1` nearer; NaN when absent), else from the
+/// pixels to the left.
+#[inline(always)]
+pub(super) fn predict(a1: f64, a2: f64, pred: &Pred) -> Option<f64> {
+    if a1.is_nan() {
+        pred.guess()
+    } else if a2.is_nan() {
+        Some(a1)
+    } else {
+        Some(2.0 * a1 - a2)
+    }
+}
+
+/// Intersection of one ray: `(t, x, y)`, or `(NaN, 0, 0)` for sky; updates the left-to-right
+/// predictor.
+#[inline(always)]
+pub(super) fn solve_ray(
+    ray: &Ray,
+    scene: &Scene<'_>,
+    guess: Option<f64>,
+    pred: &mut Pred,
+    st: &mut RenderStats,
+) -> (f64, f64, f64) {
+    let sol = intersect(ray, scene, guess, st);
+    match sol {
+        Some((t, _, _)) => pred.push(t),
+        None => *pred = Pred::default(),
+    }
+    sol.unwrap_or((f64::NAN, 0.0, 0.0))
+}
