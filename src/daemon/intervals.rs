@@ -27,7 +27,11 @@ pub const MAX_TRIES: u32 = 3;
 
 /// What happened to one request (`msg_id`: the message; `rate_hz`: the rate asked for).
 #[derive(Debug, Clone, Copy, PartialEq)]
-#[allow(missing_docs)]
+#[expect(
+    missing_docs,
+    reason = "the fields `msg_id` and `rate_hz` are the same in every variant and documented \
+              once, on the enum"
+)]
 pub enum Outcome {
     /// Accepted at this rate.
     Accepted { msg_id: u32, rate_hz: f64 },

@@ -221,7 +221,10 @@ impl Drop for Exit {
 }
 
 /// Start the thread. It ends when the event channel closes.
-#[allow(clippy::too_many_arguments)] // the thread's inputs and outputs, each used once
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the thread's inputs and outputs, each used once"
+)]
 pub fn spawn(
     mut nav: Navigator,
     mut recorder: Option<Recorder>,

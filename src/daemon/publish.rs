@@ -136,7 +136,11 @@ impl Publisher {
     /// the autopilot may have lost it). The message is deprecated in favour of
     /// MAV_CMD_DO_SET_GLOBAL_ORIGIN (2025-04), but it is what PX4 and ArduPilot releases in
     /// the field handle.
-    #[allow(deprecated)]
+    #[expect(
+        deprecated,
+        reason = "SET_GPS_GLOBAL_ORIGIN, deprecated but what PX4 and ArduPilot releases in the \
+                  field handle"
+    )]
     fn announce_origin(
         &mut self,
         target_system: u8,

@@ -594,7 +594,11 @@ fn raw_delta_p(hp_m: f64, var_hp: f64, h_m: f64, var_h: f64, delta_t_k: f64) -> 
 impl GnssPhaseEstimates {
     /// Start both estimates at their first raw values (moving averages over `window_s`,
     /// running means until the window is full).
-    #[allow(clippy::too_many_arguments)]
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the first raw value of each estimate and its variance, each from a different \
+                  part of the INS state at the call"
+    )]
     pub fn new(
         window_s: f64,
         gust_scale_m: [f64; 3],

@@ -214,7 +214,11 @@ pub fn gps_input(
 /// SET_GPS_GLOBAL_ORIGIN at `origin`. The message is deprecated in favour of
 /// MAV_CMD_DO_SET_GLOBAL_ORIGIN (2025-04), but it is the one PX4 and ArduPilot releases in the
 /// field handle (docs/REFERENCES.md M2.1–M2.3). The height is ellipsoidal, sent as MSL with N.
-#[allow(deprecated)]
+#[expect(
+    deprecated,
+    reason = "SET_GPS_GLOBAL_ORIGIN, deprecated in favour of MAV_CMD_DO_SET_GLOBAL_ORIGIN but \
+              what PX4 and ArduPilot releases in the field handle"
+)]
 pub fn set_gps_global_origin(
     target_system: u8,
     origin: &Geodetic,
@@ -409,7 +413,10 @@ pub(crate) mod tests {
     }
 
     #[test]
-    #[allow(deprecated)]
+    #[expect(
+        deprecated,
+        reason = "checks the SET_GPS_GLOBAL_ORIGIN the daemon sends"
+    )]
     fn command_and_origin_and_heartbeat() {
         let c = set_message_interval(1, 1, 105, 50.0);
         assert_eq!((c.param1, c.param2), (105.0, 20_000.0));

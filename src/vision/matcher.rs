@@ -364,7 +364,11 @@ pub struct DirectMatch {
 /// the reference camera, warped with the relative pose `t_cur_ref` into the current image and
 /// aligned there from the predicted level-0 pixel `predicted_px`. `None` if the warp, the patch
 /// (off the reference image, flat) or the alignment fail.
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "camera, reference observation (image, pixel, level, range), relative pose, current \
+              image and predicted pixel: separate pieces of tracking state at each call"
+)]
 pub fn find_match_direct(
     camera: &Camera,
     ref_pyr: &Pyramid,
@@ -444,7 +448,11 @@ pub enum EpipolarError {
 /// [`ZMSSD_THRESHOLD`]), the best position refined by [`align_2d`], and the range along the
 /// reference bearing triangulated from the aligned pixel. Segments shorter than
 /// [`SHORT_SEGMENT_PX`] are aligned from their midpoint without a scan.
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "camera, reference feature (image, pixel, level, range and its interval), relative \
+              pose and current image: separate pieces of depth-filter state at each call"
+)]
 pub fn find_epipolar_match(
     camera: &Camera,
     ref_pyr: &Pyramid,
