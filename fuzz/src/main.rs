@@ -123,7 +123,10 @@ fn save(out: &std::path::Path, name: &str, input: &Input) -> anyhow::Result<Path
     Ok(p)
 }
 
-#[allow(clippy::too_many_arguments)]
+#[expect(
+    clippy::too_many_arguments,
+    reason = "the `run` subcommand's options, passed one by one from the parsed command line"
+)]
 fn run(
     starts: &Starts,
     seed: u64,

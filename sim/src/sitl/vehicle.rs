@@ -988,9 +988,11 @@ impl Vehicle {
     }
 
     /// Handle one incoming message (never panics on any content).
-    // SET_GPS_GLOBAL_ORIGIN is superseded by MAV_CMD_DO_SET_GLOBAL_ORIGIN (2025-04) but is
-    // what PX4 and ArduPilot handle and companions send today.
-    #[allow(deprecated)]
+    #[expect(
+        deprecated,
+        reason = "SET_GPS_GLOBAL_ORIGIN is superseded by MAV_CMD_DO_SET_GLOBAL_ORIGIN (2025-04) \
+                  but is what PX4 and ArduPilot handle and companions send today"
+    )]
     pub fn handle(&mut self, header: &MavHeader, msg: &apm::MavMessage) {
         if header.system_id == u32::from(self.cfg.system_id)
             && header.component_id == self.cfg.component_id
@@ -1056,7 +1058,10 @@ impl Vehicle {
         }
     }
 
-    #[allow(deprecated)]
+    #[expect(
+        deprecated,
+        reason = "SET_GPS_GLOBAL_ORIGIN, deprecated but what companions send today (see `handle`)"
+    )]
     fn set_origin(&mut self, o: &apm::SET_GPS_GLOBAL_ORIGIN_DATA) {
         let pos = Geodetic {
             lat_rad: convert::rad_from_deg_e7(o.latitude),

@@ -181,9 +181,12 @@ fn box_sd(dx: f64, dy: f64, hx: f64, hy: f64) -> f64 {
     out + qx.max(qy).min(0.0)
 }
 
-#[allow(clippy::too_many_arguments)] // block geometry: all plain numbers, named at the call
 /// Residential blocks in block-grid coordinates `(u, v)`: streets, sidewalks, lots with houses
 /// (gabled roofs of varied albedo), driveways, yards and trees.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "block geometry: all plain numbers, named at the call"
+)]
 fn residential(
     seed: u64,
     u: f64,
@@ -316,9 +319,12 @@ fn commercial(
     lerp(a, 0.17, band(d_street, street_hw, f))
 }
 
-#[allow(clippy::too_many_arguments)] // town layout: all plain numbers, named at the call
 /// Small town of a rural zone: `(mask, albedo)`. Towns sit in cells of `cell_m` with
 /// probability `prob`, radius `r_min…r_max`, on an axis-aligned street grid.
+#[expect(
+    clippy::too_many_arguments,
+    reason = "town layout: all plain numbers, named at the call"
+)]
 fn town(
     seed: u64,
     x: f64,

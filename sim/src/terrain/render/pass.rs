@@ -56,7 +56,11 @@ impl<F: Fn(f64) -> RowRays> MainPass<'_, F> {
         if self.avx2 {
             // SAFETY: `avx2` is true only when `has_avx2` found every feature the function is
             // compiled for on this CPU.
-            #[allow(unsafe_code)]
+            #[expect(
+                unsafe_code,
+                reason = "calling the AVX2 build needs `unsafe`; it runs only where `has_avx2` \
+                          found the features"
+            )]
             return unsafe { self.block_avx2(blk, chunk, rows) };
         }
         self.block_body(blk, chunk, rows)
