@@ -1,7 +1,10 @@
 //! The `ianav-sim` command line: a short flight writes its outputs; bad arguments and bad
 //! configuration files exit non-zero with a message naming the offending field, never a panic.
 
-#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 use std::path::PathBuf;
 use std::process::{Command, Output};

@@ -7,12 +7,10 @@
 //! ISA air, nothing else) checks what the flight loop cannot set up: the authors' untrimmed
 //! initial conditions, a corrupted estimate, and the tuning aids.
 
-// Helpers outside #[test] functions unwrap too (clippy.toml allows unwrap in tests).
-#![allow(
+#![expect(
     clippy::unwrap_used,
-    clippy::cast_precision_loss,
-    clippy::cast_possible_truncation,
-    clippy::cast_sign_loss
+    reason = "tests: helpers outside #[test] functions unwrap too (clippy.toml allows it only \
+              in #[test] functions), and a failed unwrap is a failed test"
 )]
 
 use ianav::env::atmosphere::{self, AtmosphereOffsets};

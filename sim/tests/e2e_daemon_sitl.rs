@@ -10,7 +10,10 @@
 //! attitude, cold-start sensor errors), which separates what the daemon's initialisation
 //! changes from what MAVLink transport changes. See docs/E2E.md for the figures and the
 //! derivation of the tolerances.
-#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 use std::collections::BTreeMap;
 use std::time::Duration;
@@ -437,7 +440,10 @@ fn ardupilot_daemon_toml(imu_rate_hz: f64, air_rate_hz: f64, output_hz: f64) -> 
 }
 
 /// The daemon's ODOMETRY as poses at their time of validity (vehicle time).
-#[allow(deprecated)] // SET_GPS_GLOBAL_ORIGIN
+#[expect(
+    deprecated,
+    reason = "SET_GPS_GLOBAL_ORIGIN, deprecated but what the daemon sends (src/io/mavlink_out.rs)"
+)]
 fn odometry_poses(msgs: &[apm::MavMessage]) -> BTreeMap<u64, Pose> {
     let origin = msgs
         .iter()
@@ -723,7 +729,10 @@ fn assert_beside_real_autopilot(
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[allow(deprecated)] // SET_GPS_GLOBAL_ORIGIN, as the daemon sends it
+#[expect(
+    deprecated,
+    reason = "SET_GPS_GLOBAL_ORIGIN, deprecated but what the daemon sends (src/io/mavlink_out.rs)"
+)]
 async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
     let seed = 1;
     let setup = setup();
@@ -834,7 +843,10 @@ async fn scenario_2_at_10x_rates_initialisation_and_lossless_transport() {
         origin < first_odo,
         "origin announced before the first ODOMETRY"
     );
-    #[allow(deprecated)]
+    #[expect(
+        deprecated,
+        reason = "SET_GPS_GLOBAL_ORIGIN, deprecated but what the daemon sends"
+    )]
     let apm::MavMessage::SET_GPS_GLOBAL_ORIGIN(o) = &run.daemon_msgs[origin] else {
         unreachable!()
     };

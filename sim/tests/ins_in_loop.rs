@@ -1,7 +1,10 @@
 //! The GNSS-denied INS flown in the simulator's loop: guidance and control fly on the INS solution;
 //! its errors stay within the bounds the paper's INS achieves.
 
-#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 use ianav::ins::InsConfig;
 use ianav::math::angle::wrap_pi;

@@ -1,7 +1,10 @@
 //! Scenario-level acceptance: distance flown against the paper's table, and determinism of
 //! whole flights (same seed → byte-identical outputs; another seed → different ones).
 
-#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 use std::path::Path;
 

@@ -2,7 +2,10 @@
 //! TIMESYNC, unit conversions against the simulator's own samples, GNSS loss, companion estimates
 //! versus truth, flying on them, and the camera frame stream. Every run is a few simulated seconds
 //! (short warm-up) so the file stays well under a minute.
-#![allow(clippy::unwrap_used)] // tests: a failed unwrap is a failed test
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 use std::collections::BTreeMap;
 use std::sync::Arc;
