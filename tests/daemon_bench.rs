@@ -4,8 +4,10 @@
 //! `cargo test --profile ci --test daemon_bench -- --ignored --nocapture`; figures in
 //! docs/DAEMON.md.
 
-// Helpers outside #[test] fns: a failed loopback setup should fail the run loudly.
-#![allow(clippy::unwrap_used)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "helpers outside #[test] functions: a failed loopback setup should fail the run loudly"
+)]
 
 mod common;
 

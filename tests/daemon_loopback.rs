@@ -4,8 +4,10 @@
 //! link loss and return, a frame stream absent at start, stalling and resuming). Every wait is
 //! bounded; the daemon runs in-process so its counters can be read.
 
-// Helpers outside #[test] fns: a failed loopback setup should fail the test loudly.
-#![allow(clippy::unwrap_used)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "helpers outside #[test] functions: a failed loopback setup should fail the test loudly"
+)]
 
 mod common;
 
@@ -42,7 +44,10 @@ fn rss_kb() -> u64 {
 }
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
-#[allow(deprecated)] // SET_GPS_GLOBAL_ORIGIN, see src/io/mavlink_out.rs
+#[expect(
+    deprecated,
+    reason = "SET_GPS_GLOBAL_ORIGIN, deprecated but what the daemon sends (src/io/mavlink_out.rs)"
+)]
 async fn initialises_publishes_at_rate_answers_timesync_and_requests_intervals() {
     let port = fa::free_udp_port();
     let (h, task) = start(config(port, "")).await;

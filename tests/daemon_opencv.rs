@@ -3,7 +3,10 @@
 //! retried and counted without stopping the daemon. Needs the system OpenCV and GStreamer's
 //! base plugins (`.ci/run` installs them); loopback only, every wait bounded.
 #![cfg(feature = "opencv")]
-#![allow(clippy::unwrap_used)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 mod common;
 

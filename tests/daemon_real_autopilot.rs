@@ -3,7 +3,10 @@
 //! IMU stream left at its 1 Hz default, and the daemon's own GPS_INPUT reported back as the
 //! autopilot's GNSS. Loopback UDP only; every wait is bounded.
 
-#![allow(clippy::unwrap_used)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 mod common;
 

@@ -7,8 +7,10 @@
 //! The hook is compiled only with debug assertions (the `ci` test profile); in a build without
 //! them these tests say so and pass without running.
 
-// Helpers outside #[test] fns: a failed loopback setup should fail the test loudly.
-#![allow(clippy::unwrap_used)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "helpers outside #[test] functions: a failed loopback setup should fail the test loudly"
+)]
 
 mod common;
 

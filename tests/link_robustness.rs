@@ -3,7 +3,10 @@
 //! extremes (over loopback and through the decoder, deterministically and as a property), and
 //! a lone IMU sample stamped an hour ahead. Loopback UDP only; every wait is bounded.
 
-#![allow(clippy::unwrap_used)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
 
 mod common;
 

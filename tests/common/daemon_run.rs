@@ -1,8 +1,15 @@
 //! Starting and stopping the daemon in-process for the integration tests (its counters and
 //! state stay readable through the [`Handle`]).
 
-// Test helper: a daemon that fails to start or stop should fail the test loudly.
-#![allow(dead_code, clippy::unwrap_used)]
+#![allow(
+    dead_code,
+    reason = "compiled into every test binary with `mod common`, each using a part of it; `expect` \
+              would be unfulfilled in those that use all of it, such as daemon_loopback"
+)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "test helper: a daemon that fails to start or stop should fail the test loudly"
+)]
 
 use std::time::Duration;
 

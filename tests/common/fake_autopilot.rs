@@ -4,8 +4,15 @@
 //! GLOBAL_POSITION_INT (5 Hz) and HEARTBEAT (1 Hz), answering TIMESYNC, and recording every
 //! message the daemon sends. Frames are written by hand so the tests can also inject garbage.
 
-// Test helper: failing loudly on a broken loopback socket is the right behaviour.
-#![allow(dead_code, clippy::unwrap_used)]
+#![allow(
+    dead_code,
+    reason = "compiled into every test binary with `mod common`, each using a part of it; `expect` \
+              would break as soon as one test binary used all of it"
+)]
+#![expect(
+    clippy::unwrap_used,
+    reason = "test helper: failing loudly on a broken loopback socket is the right behaviour"
+)]
 
 use std::net::SocketAddr;
 use std::sync::{Arc, Mutex};
