@@ -83,8 +83,9 @@ fn run_briefly(file: &std::path::Path, env: &[(&str, &str)]) -> (Option<i32>, St
     )
 }
 
-/// One validation (issue 14): for every rule `run` enforces before it opens the link,
-/// `check-config` refuses the same file with exit status 1 and the same message, byte for byte.
+/// One validation for `run` and `check-config`: for every rule `run` enforces before it opens the
+/// link, `check-config` refuses the same file with exit status 1 and the same message, byte for
+/// byte.
 #[test]
 fn check_config_refuses_what_run_refuses_with_the_same_error() {
     let dir = std::env::temp_dir().join(format!("ianav-cli-parity-{}", std::process::id()));

@@ -1,8 +1,8 @@
-//! The daemon against a fake PX4-like autopilot on loopback UDP (issue 5 acceptance: rates,
+//! The daemon against a fake PX4-like autopilot on loopback UDP (the daemon's acceptance: rates,
 //! nothing before initialisation, TIMESYNC, interval requests, heartbeats; robustness: garbage,
-//! truncated and bad-CRC frames, MAVLink 1, unknown ids, a 10× IMU flood, an autopilot reboot,
-//! link loss and return, a frame stream absent at start, stalling and resuming). Every wait is
-//! bounded; the daemon runs in-process so its counters can be read.
+//! truncated and bad-CRC frames, MAVLink 1, unknown ids, a 10× IMU flood, an autopilot reboot, link
+//! loss and return, a frame stream absent at start, stalling and resuming). Every wait is bounded;
+//! the daemon runs in-process so its counters can be read.
 
 #![expect(
     clippy::unwrap_used,

@@ -1,6 +1,6 @@
-//! Live-camera sources through OpenCV (feature `opencv`; issue 5 item 4): a GStreamer test
-//! pipeline delivers grey frames to the navigation thread, and an absent V4L2 device is
-//! retried and counted without stopping the daemon. Needs the system OpenCV and GStreamer's
+//! Live-camera sources through OpenCV (feature `opencv`, docs/DAEMON.md "Camera sources"): a
+//! GStreamer test pipeline delivers grey frames to the navigation thread, and an absent V4L2
+//! device is retried and counted without stopping the daemon. Needs the system OpenCV and GStreamer's
 //! base plugins (`.ci/run` installs them); loopback only, every wait bounded.
 #![cfg(feature = "opencv")]
 #![expect(

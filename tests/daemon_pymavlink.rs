@@ -1,6 +1,7 @@
-//! pymavlink as an independent MAVLink peer (issue 5 acceptance): `tests/pymavlink_peer.py`
-//! plays an ArduPilot-like autopilot, decodes (with its own CRC and field code) everything the
-//! daemon sends and checks the values; the daemon must accept what pymavlink encodes.
+//! pymavlink as an independent MAVLink peer (the daemon's acceptance against a MAVLink
+//! implementation not its own): `tests/pymavlink_peer.py` plays an ArduPilot-like autopilot,
+//! decodes (with its own CRC and field code) everything the daemon sends and checks the values; the
+//! daemon must accept what pymavlink encodes.
 //!
 //! Without pymavlink the test is skipped with a loud message, unless
 //! `IANAV_REQUIRE_PYMAVLINK=1`, when it fails (CI installs pymavlink and sets it).

@@ -1,8 +1,8 @@
-//! No silent worker death (issue 14): the `ianav` binary against the fake PX4 autopilot, with
-//! a worker made to fail by the `IANAV_FAULT` test hook (docs/DAEMON.md "Worker failures"),
-//! exits non-zero with a message naming the worker after a STATUSTEXT saying so; the camera
-//! task is restarted, then the daemon stops if it keeps failing. The systemd watchdog is fed
-//! only while IMU samples are processed.
+//! No silent worker death (a reliability requirement of the daemon): the `ianav` binary against the
+//! fake PX4 autopilot, with a worker made to fail by the `IANAV_FAULT` test hook (docs/DAEMON.md
+//! "Worker failures"), exits non-zero with a message naming the worker after a STATUSTEXT saying
+//! so; the camera task is restarted, then the daemon stops if it keeps failing. The systemd
+//! watchdog is fed only while IMU samples are processed.
 //!
 //! The hook is compiled only with debug assertions (the `ci` test profile); in a build without
 //! them these tests say so and pass without running.

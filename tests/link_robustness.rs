@@ -1,7 +1,8 @@
-//! The link against other systems and absurd input (issue 14): a ground station and two
-//! companions beside the fake autopilot for 20 s, every input message with its fields at their
-//! extremes (over loopback and through the decoder, deterministically and as a property), and
-//! a lone IMU sample stamped an hour ahead. Loopback UDP only; every wait is bounded.
+//! The link against other systems and absurd input (the daemon's link-robustness acceptance): a
+//! ground station and two companions beside the fake autopilot for 20 s, every input message with
+//! its fields at their extremes (over loopback and through the decoder, deterministically and as a
+//! property), and a lone IMU sample stamped an hour ahead. Loopback UDP only; every wait is
+//! bounded.
 
 #![expect(
     clippy::unwrap_used,
@@ -118,11 +119,11 @@ struct Sent {
     inputs: AtomicU64,
 }
 
-/// Acceptance (issue 14): a ground station (HEARTBEAT at 1 Hz), a second flight controller on
-/// system 2 and a companion on the autopilot's own system (HEARTBEAT at 1 Hz, IMU-looking
-/// messages at 50 Hz on their own clocks, a GNSS fix 10 km away) beside the autopilot for
-/// 20 s: the autopilot is never switched, ODOMETRY keeps its rate (≥ 95 %, no gap over 0.2 s),
-/// nothing of theirs is decoded, and every message of theirs is counted.
+/// Link-robustness acceptance: a ground station (HEARTBEAT at 1 Hz), a second flight controller on
+/// system 2 and a companion on the autopilot's own system (HEARTBEAT at 1 Hz, IMU-looking messages
+/// at 50 Hz on their own clocks, a GNSS fix 10 km away) beside the autopilot for 20 s: the
+/// autopilot is never switched, ODOMETRY keeps its rate (≥ 95 %, no gap over 0.2 s), nothing of
+/// theirs is decoded, and every message of theirs is counted.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_ground_station_and_companions_on_the_link_neither_take_it_over_nor_deafen_it() {
     const RUN: Duration = Duration::from_secs(20);
@@ -314,9 +315,9 @@ async fn a_ground_station_and_companions_on_the_link_neither_take_it_over_nor_de
     assert!(o.q[3].abs() < 0.02, "{:?}", o.q);
 }
 
-/// Acceptance (issue 14): every input message of the autopilot with its fields at their
-/// extremes, in the `ci` profile (overflow checks on): no panic, the IMU is still read at its
-/// rate, the values are refused and counted, no reboot or jump is taken.
+/// Link-robustness acceptance: every input message of the autopilot with its fields at their
+/// extremes, in the `ci` profile (overflow checks on): no panic, the IMU is still read at its rate,
+/// the values are refused and counted, no reboot or jump is taken.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn extreme_field_values_of_every_input_message_are_refused_and_counted_and_the_imu_is_still_read()
  {
@@ -408,9 +409,9 @@ async fn extreme_field_values_of_every_input_message_are_refused_and_counted_and
     );
 }
 
-/// Acceptance (issue 14): one IMU sample stamped an hour ahead, on either time base: refused
-/// and counted; no reboot or jump announced or acted on (no interval requests, no IMU refused
-/// after it, no IMU gap in the INS); ODOMETRY flows on.
+/// Link-robustness acceptance: one IMU sample stamped an hour ahead, on either time base: refused
+/// and counted; no reboot or jump announced or acted on (no interval requests, no IMU refused after
+/// it, no IMU gap in the INS); ODOMETRY flows on.
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 async fn a_lone_imu_sample_stamped_an_hour_ahead_is_refused_not_taken_for_a_reboot() {
     for clock in ["daemon", "autopilot"] {

@@ -1,6 +1,6 @@
 #!/usr/bin/env python3
-"""Independent MAVLink peer for the ianav daemon (issue 5 acceptance), run by
-tests/daemon_pymavlink.rs.
+"""Independent MAVLink peer for the ianav daemon (its acceptance against a MAVLink
+implementation not its own), run by tests/daemon_pymavlink.rs.
 
 Plays an ArduPilot-like autopilot over UDP with pymavlink: sends HEARTBEAT (ARDUPILOTMEGA),
 SCALED_IMU at 50 Hz, SCALED_PRESSURE, VFR_HUD and ATTITUDE at 10 Hz, GPS_RAW_INT and
