@@ -1,4 +1,4 @@
-//! Fuzzing of ianav's whole input path on stable Rust (issue 14 item 3; docs/RELIABILITY.md):
+//! Fuzzing of ianav's whole input path on stable Rust (docs/RELIABILITY.md):
 //! bytes → MAVLink frames (the mavlink crate's reader, v1 and v2, signed and unsigned, as
 //! the daemon's connection reads them) → messages (`MavMessage::parse`) → sensor events (the
 //! daemon's [`InputDecoder`](ianav::io::mavlink_in::InputDecoder), time mapping and gates) →

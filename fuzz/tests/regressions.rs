@@ -1,6 +1,6 @@
-//! Fuzz regressions and properties of the whole input path (issue 14 item 3;
-//! docs/RELIABILITY.md): reproducers of findings, the extreme-field sweep, determinism and a
-//! short fixed-seed run. Meant for the `ci` profile (overflow checks on).
+//! Fuzz regressions and properties of the whole input path (docs/RELIABILITY.md): reproducers of
+//! findings, the extreme-field sweep, determinism and a short fixed-seed run. Meant for the `ci`
+//! profile (overflow checks on).
 
 use ianav_fuzz::input::{Input, Stage, Starts};
 use ianav_fuzz::pipeline::{Datagram, Variant};
@@ -35,12 +35,12 @@ fn no_new_finding(starts: &Starts, input: &Input) -> Option<ianav_fuzz::pipeline
     }
 }
 
-/// Issue 14's GPS_RAW_INT overflow (`alt_ellipsoid − alt` in i32), as the fuzzer found it in
-/// 2,800 inputs (under 1 s) when the i32 subtraction was put back, minimised: a HEARTBEAT,
-/// then garbage and a signed GPS_RAW_INT with `alt_ellipsoid` = i32::MAX and `alt` < 0, into
-/// an ArduPilot daemon that has just started (its own clock maps the fix at once).
+/// The old GPS_RAW_INT height overflow (`alt_ellipsoid − alt` in i32, since fixed), as the fuzzer
+/// found it in 2,800 inputs (under 1 s) when the i32 subtraction was put back, minimised: a
+/// HEARTBEAT, then garbage and a signed GPS_RAW_INT with `alt_ellipsoid` = i32::MAX and `alt` < 0,
+/// into an ArduPilot daemon that has just started (its own clock maps the fix at once).
 #[test]
-fn the_issue_14_gps_height_overflow_found_by_the_fuzzer_passes() {
+fn the_gps_raw_int_height_overflow_found_by_the_fuzzer_passes() {
     let starts = starts();
     let input = Input::from_bytes(&from_hex(concat!(
         "0500e80300001500fd090100000101000000000000000103800403be0e30750000520000130000",
