@@ -3,7 +3,7 @@
 //! neighbours'; every pixel exact without interpolation.
 
 use super::RenderStats;
-use super::intersect::{Scene, fast_quad, intersect};
+use super::intersect::{FAST_RUN, FastRun, Scene, fast_run, intersect};
 use super::rays::{Ray, RowRays};
 
 /// Pixel-to-pixel memory of a row: the last two solutions' depths.
@@ -143,11 +143,9 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     }
 
     /// [`Self::solve_row`] with step 2 and gap 2 for the rows `rs` (block rows 2 apart, each
-    /// predicted from the one before), their columns taken in turn. Row 0 of a block is
-    /// predicted from the left only, one long chain of dependent solves; the solves of the
-    /// rows below it hang off that chain without lengthening it, so the CPU overlaps them.
-    /// Each solve sees the same guess as in row order: the same values. Rows below the block's
-    /// first are solved four columns at a time ([`Self::solve_quad`]).
+    /// predicted from the one before), in turn. Row 0 of a block is predicted from the left
+    /// only, column after column; the rows below it are predicted from above, so their solved
+    /// columns are independent of one another and go through [`Self::solve_from_above`].
     pub(super) fn solve_rows(
         &self,
         blk: &mut GroundBlock,
@@ -156,91 +154,73 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         st: &mut RenderStats,
     ) {
         let wu = self.wu;
-        let n = rs.len().min(JOINT_ROWS);
-        if n == 0 {
-            return;
-        }
-        let rays: [RowRays; JOINT_ROWS] =
-            std::array::from_fn(|i| (self.rays_of_row)((v0 + rs[i.min(n - 1)]) as f64));
-        let mut preds = [Pred::default(); JOINT_ROWS];
-        // Quads of solved columns (8 image columns), then the rest one by one.
-        let quads = wu / 8;
-        for q in 0..quads {
-            for i in 0..n {
-                if rs[i] >= 2 {
-                    self.solve_quad(blk, rs[i], &rays[i], 8 * q, &mut preds[i], st);
-                } else {
-                    for col in (8 * q..8 * q + 8).step_by(2) {
-                        self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
-                    }
+        for &r in rs {
+            let rays = (self.rays_of_row)((v0 + r) as f64);
+            if r >= 2 {
+                self.solve_from_above(blk, r, &rays, st);
+            } else {
+                let mut pred = Pred::default();
+                let mut col = 0;
+                while col < wu {
+                    self.solve_at(blk, r, 2, &rays, col, &mut pred, st);
+                    col = next_col(col, 2, wu);
                 }
             }
-        }
-        // The column after the quads' last (the image's last column is always solved).
-        let mut col = if quads == 0 {
-            0
-        } else {
-            next_col(8 * quads - 2, 2, wu)
-        };
-        while col < wu {
-            for i in 0..n {
-                self.solve_at(blk, rs[i], 2, &rays[i], col, &mut preds[i], st);
-            }
-            col = next_col(col, 2, wu);
-        }
-        for i in 0..n {
-            self.fill_odd(blk, rs[i], 2, &rays[i], st);
+            self.fill_odd(blk, r, 2, &rays, st);
         }
     }
 
-    /// [`Self::solve_at`] (gap 2) of row `r ≥ 2` at the columns `col0, col0 + 2, col0 + 4,
-    /// col0 + 6`, the same values: when all four are predicted from above (their guesses then
-    /// do not depend on one another), their fast paths run side by side in straight-line code
-    /// (independent chains the CPU overlaps, partly in vector registers); a column whose fast
-    /// path fails is solved by [`intersect`] from its guess, as alone. Otherwise (sky above) the
-    /// columns are solved one by one.
-    #[inline(always)]
-    pub(super) fn solve_quad(
+    /// [`Self::solve_at`] (gap 2) of row `r ≥ 2` at every solved column, the same values: the
+    /// fast paths of the columns with a ground pixel above first, [`FAST_RUN`] at a time in
+    /// vectorised phases ([`fast_run`]), then, column after column, [`intersect`] where the fast
+    /// path failed and the left-to-right prediction where the pixel above is sky.
+    fn solve_from_above(
         &self,
         blk: &mut GroundBlock,
         r: usize,
         rays: &RowRays,
-        col0: usize,
-        pred: &mut Pred,
         st: &mut RenderStats,
     ) {
         let wu = self.wu;
-        let cols = [col0, col0 + 2, col0 + 4, col0 + 6];
-        let a1 = cols.map(|c| self.above(blk, r, 2, c, 1));
-        if r < 2 || a1.iter().any(|t| t.is_nan()) {
-            for c in cols {
-                self.solve_at(blk, r, 2, rays, c, pred, st);
+        let mut pred = Pred::default();
+        let mut fast = FastRun::default();
+        let mut cols = [0_usize; FAST_RUN];
+        let mut a1 = [0.0_f64; FAST_RUN];
+        let mut guess = [0.0_f64; FAST_RUN];
+        let mut col = 0;
+        while col < wu {
+            let mut m = 0;
+            while m < FAST_RUN && col < wu {
+                cols[m] = col;
+                m += 1;
+                col = next_col(col, 2, wu);
             }
-            return;
-        }
-        let a2 = cols.map(|c| self.above(blk, r, 2, c, 2));
-        // `predict` with a ground pixel above.
-        let guess: [f64; 4] = std::array::from_fn(|i| {
-            if a2[i].is_nan() {
-                a1[i]
-            } else {
-                2.0 * a1[i] - a2[i]
+            for j in 0..m {
+                let (p1, p2) = (
+                    self.above(blk, r, 2, cols[j], 1),
+                    self.above(blk, r, 2, cols[j], 2),
+                );
+                a1[j] = p1;
+                // `predict` with a ground pixel above (NaN, and not used, without one).
+                guess[j] = if p2.is_nan() { p1 } else { 2.0 * p1 - p2 };
             }
-        });
-        let fast = fast_quad(rays, &cols, &guess, self.scene.table);
-        for i in 0..4 {
-            let sol = match fast[i] {
-                Some(sol) => {
+            fast_run(rays, &cols[..m], &guess[..m], self.scene.table, &mut fast);
+            for j in 0..m {
+                let c = cols[j];
+                let sol = if a1[j].is_nan() {
+                    intersect(&rays.at(c as f64), self.scene, pred.guess(), st)
+                } else if fast.ok[j] {
                     st.height_lookups += 1;
-                    Some(sol)
+                    Some((fast.t[j], fast.x[j], fast.y[j]))
+                } else {
+                    intersect(&rays.at(c as f64), self.scene, Some(guess[j]), st)
+                };
+                match sol {
+                    Some((t, _, _)) => pred.push(t),
+                    None => pred = Pred::default(),
                 }
-                None => intersect(&rays.at(cols[i] as f64), self.scene, Some(guess[i]), st),
-            };
-            match sol {
-                Some((t, _, _)) => pred.push(t),
-                None => *pred = Pred::default(),
+                blk.set(r * wu + c, sol.unwrap_or((f64::NAN, 0.0, 0.0)));
             }
-            blk.set(r * wu + cols[i], sol.unwrap_or((f64::NAN, 0.0, 0.0)));
         }
     }
 
@@ -346,9 +326,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         let below_last = v0 + n_rows < image_rows;
         let extra = (n_rows.is_multiple_of(2) && below_last).then_some(n_rows);
         let rs: Vec<usize> = (0..n_rows).step_by(2).chain(extra).collect();
-        for g in rs.chunks(JOINT_ROWS) {
-            self.solve_rows(blk, g, v0, st);
-        }
+        self.solve_rows(blk, &rs, v0, st);
         for r in (1..n_rows).step_by(2) {
             if r + 1 >= n_rows && !below_last {
                 self.solve_row(blk, r, v0 + r, 2, 1, st);
@@ -378,11 +356,6 @@ pub(super) fn next_col(col: usize, step: usize, wu: usize) -> usize {
         wu - 1
     }
 }
-
-/// Solved rows taken together by [`BlockGeometry::solve_rows`]: all of a 16-row block's (its
-/// even rows and the next block's first). Measured over a flight: 8–10 % less CPU per frame
-/// with all of them, 6 % with pairs.
-pub(super) const JOINT_ROWS: usize = 9;
 
 /// Depth prediction from the two pixels above (`a1` nearer; NaN when absent), else from the
 /// pixels to the left.

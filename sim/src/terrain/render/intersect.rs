@@ -4,7 +4,7 @@
 
 use super::super::Terrain;
 use super::super::tiles::{HEIGHT_SPACING_M, HEIGHT_STRIDE, HEIGHT_TILE};
-use super::fixed::split_fixed;
+use super::fixed::{FIX_BITS, FIX_MASK, FIX_ONE, round_i64, split_fixed};
 use super::rays::{Ray, RowRays};
 use super::{MAX_RANGE_M, RenderStats};
 
@@ -104,38 +104,108 @@ pub(super) fn eval(
     (hr - h, dh - hx * dx - hy * dy, x, y)
 }
 
-/// The fast path of [`intersect`] (on a frame whose rays are all monotone) for the rays of
-/// `rays` at four columns from their guesses, side by side: `Some((t, x, y))` where it
-/// succeeds, with the values `intersect` gives; `None` where `intersect` would go on to its
-/// general case.
-#[inline(always)]
-pub(super) fn fast_quad(
-    rays: &RowRays,
-    cols: &[usize; 4],
-    guess: &[f64; 4],
-    table: &HeightTable<'_>,
-) -> [Option<(f64, f64, f64)>; 4] {
-    let ray: [Ray; 4] = std::array::from_fn(|i| rays.at(cols[i] as f64));
-    let in_range = |t: f64, n2: f64| t > 0.0 && t * t * n2 < MAX_RANGE_M * MAX_RANGE_M;
-    let mut out = [None; 4];
-    let mut unused = 0;
-    for i in 0..4 {
-        let (ray, t0) = (&ray[i], guess[i]);
-        let (f0, d0, x0, y0) = eval(ray, table, t0, &mut unused);
-        let dt = -f0 / d0;
-        let t1 = t0 + dt;
-        if in_range(t0, ray.n2)
-            && d0 < 0.0
-            && f0.is_finite()
-            && f0.abs() < NEWTON_ACCEPT_M
-            && in_range(t1, ray.n2)
-        {
-            let x = x0 + (ray.cx1 + 2.0 * ray.cx2 * t0) * dt;
-            let y = y0 + (ray.cy1 + 2.0 * ray.cy2 * t0) * dt;
-            out[i] = Some((t1, x, y));
+/// Solved pixels of one row handled together by [`fast_run`] at most.
+pub(super) const FAST_RUN: usize = 64;
+
+/// What [`fast_run`] found: the fast path's `(t, x, y)` where `ok`.
+pub(super) struct FastRun {
+    pub(super) t: [f64; FAST_RUN],
+    pub(super) x: [f64; FAST_RUN],
+    pub(super) y: [f64; FAST_RUN],
+    pub(super) ok: [bool; FAST_RUN],
+}
+
+impl Default for FastRun {
+    fn default() -> Self {
+        Self {
+            t: [0.0; FAST_RUN],
+            x: [0.0; FAST_RUN],
+            y: [0.0; FAST_RUN],
+            ok: [false; FAST_RUN],
         }
     }
-    out
+}
+
+/// The fast path of [`intersect`] (on a frame whose rays are all monotone) for the rays of
+/// `rays` at the columns `cols` (at most [`FAST_RUN`]) from their guesses: `ok` where it
+/// succeeds, with the values `intersect` gives; not `ok` where `intersect` would go on to its
+/// general case, or where the guess is NaN, or the point falls outside the frame's height
+/// tiles (`intersect` then evaluates the height directly). The same operations as `intersect`
+/// in three loops of independent iterations: rays, points and lattice cells (vectorised),
+/// height loads, then the Newton step and its checks (vectorised).
+#[inline(always)]
+pub(super) fn fast_run(
+    rays: &RowRays,
+    cols: &[usize],
+    guess: &[f64],
+    table: &HeightTable<'_>,
+    out: &mut FastRun,
+) {
+    const N: usize = FAST_RUN;
+    let m = cols.len().min(guess.len()).min(N);
+    let (mut hr, mut dh, mut dx, mut dy) = ([0.0; N], [0.0; N], [0.0; N], [0.0; N]);
+    let (mut n2, mut fx, mut fy) = ([0.0; N], [0.0; N], [0.0; N]);
+    let (mut tile, mut cell) = ([0_u64; N], [0_u64; N]);
+    let mut inside = [false; N];
+    let (ntx, nty) = (table.ntx as u64, table.nty as u64);
+    let tile_bits = HEIGHT_TILE.trailing_zeros();
+    for j in 0..m {
+        let ray = rays.at(cols[j] as f64);
+        let t0 = guess[j];
+        let (x, y, h) = ray.xyh(t0);
+        out.x[j] = x;
+        out.y[j] = y;
+        hr[j] = h;
+        dh[j] = ray.ch1 + 2.0 * ray.ch2 * t0;
+        dx[j] = ray.cx1 + 2.0 * ray.cx2 * t0;
+        dy[j] = ray.cy1 + 2.0 * ray.cy2 * t0;
+        n2[j] = ray.n2;
+        // `HeightTable::height_grad`'s cell and weights; a logical shift turns a negative
+        // coordinate into a tile beyond the table, outside as the arithmetic shift's is.
+        let gx = round_i64((x * (1.0 / HEIGHT_SPACING_M) + table.ox) * FIX_ONE);
+        let gy = round_i64((y * (1.0 / HEIGHT_SPACING_M) + table.oy) * FIX_ONE);
+        let (ix, iy) = ((gx as u64) >> FIX_BITS, (gy as u64) >> FIX_BITS);
+        fx[j] = f64::from((gx & FIX_MASK) as i32) * (1.0 / FIX_ONE);
+        fy[j] = f64::from((gy & FIX_MASK) as i32) * (1.0 / FIX_ONE);
+        let (tx, ty) = (ix >> tile_bits, iy >> tile_bits);
+        inside[j] = (tx < ntx) & (ty < nty);
+        tile[j] = ty.wrapping_mul(ntx).wrapping_add(tx);
+        let (lx, ly) = (ix & (HEIGHT_TILE as u64 - 1), iy & (HEIGHT_TILE as u64 - 1));
+        cell[j] = ly * HEIGHT_STRIDE as u64 + lx;
+    }
+    let mut corners = [[0.0_f32; 4]; N];
+    for j in 0..m {
+        if !inside[j] {
+            continue;
+        }
+        let k = cell[j] as usize;
+        match table
+            .tiles
+            .get(tile[j] as usize)
+            .and_then(|h| h.get(k..k + HEIGHT_STRIDE + 2))
+        {
+            Some(h) => corners[j] = [h[0], h[1], h[HEIGHT_STRIDE], h[HEIGHT_STRIDE + 1]],
+            None => inside[j] = false,
+        }
+    }
+    let in_range = |t: f64, n2: f64| t > 0.0 && t * t * n2 < MAX_RANGE_M * MAX_RANGE_M;
+    for j in 0..m {
+        let [h00, h10, h01, h11] = corners[j];
+        let (h, hx, hy) = super::super::bilinear_grad(h00, h10, h01, h11, fx[j], fy[j]);
+        let (f0, d0) = (hr[j] - h, dh[j] - hx * dx[j] - hy * dy[j]);
+        let t0 = guess[j];
+        let step = -f0 / d0;
+        let t1 = t0 + step;
+        out.ok[j] = inside[j]
+            & in_range(t0, n2[j])
+            & (d0 < 0.0)
+            & f0.is_finite()
+            & (f0.abs() < NEWTON_ACCEPT_M)
+            & in_range(t1, n2[j]);
+        out.t[j] = t1;
+        out.x[j] += dx[j] * step;
+        out.y[j] += dy[j] * step;
+    }
 }
 
 /// Whether `f` is strictly decreasing on `[0, t_bot]` for this ray: `f' ≤ h' + L·|(x', y')|`
