@@ -121,6 +121,43 @@ fn one_line(s: &str) -> String {
 }
 
 impl RunRecord {
+    /// Why this record is not a whole run, if it is not. Run files are written whole (through
+    /// a temporary file and a rename), but a file cut short elsewhere (a copy interrupted, a
+    /// disk full, a crash before the data reached the disk) can still parse when it ends at a
+    /// line: a completed run's INS samples end at its last output instant, less than one output
+    /// period (`output_period_s`) before the mission end, and every visual system has a sample
+    /// at each of the INS's times. Failed runs have no samples and are whole.
+    pub fn incomplete(&self, output_period_s: f64) -> Option<String> {
+        let RunOutcome::Completed {
+            samples, vision, ..
+        } = &self.outcome
+        else {
+            return None;
+        };
+        let Some(last) = samples.last() else {
+            return Some("a completed run without samples".into());
+        };
+        // Times and durations are written to 1 ms: half of it absorbs their rounding.
+        if self.duration_s - last.t_s > output_period_s - 5e-4 {
+            return Some(format!(
+                "its samples stop at t = {} s, before the mission end ({} s)",
+                format_fixed(last.t_s, 3),
+                format_fixed(self.duration_s, 3)
+            ));
+        }
+        vision
+            .iter()
+            .find(|v| v.samples.len() != samples.len())
+            .map(|v| {
+                format!(
+                    "its `{}` section has {} samples, the INS {}",
+                    v.system,
+                    v.samples.len(),
+                    samples.len()
+                )
+            })
+    }
+
     /// The run file: `# key = value` header lines, then for a completed run the column line
     /// and one row per sample, every number with a fixed number of decimals (byte-stable).
     pub fn to_text(&self) -> String {
@@ -556,5 +593,76 @@ mod tests {
             panic!("should be completed")
         };
         assert_eq!((vision[0].system.as_str(), vision[0].aiding), ("vns", None));
+    }
+
+    #[test]
+    fn a_file_cut_at_a_line_is_an_incomplete_run() {
+        let sample = |t_s: f64| NseSample {
+            t_s,
+            yaw_deg: 0.1,
+            pitch_deg: 0.1,
+            bank_deg: 0.1,
+            att_norm_deg: 0.2,
+            alt_m: 1.0,
+            hor_m: 2.0,
+            hor_pct: 0.5,
+            distance_m: 100.0 * t_s,
+        };
+        let samples: Vec<NseSample> = [0.0, 10.0, 20.0, 25.0].map(sample).to_vec();
+        let record = RunRecord {
+            scenario: 2,
+            scenario_name: "s".into(),
+            navigation: NavigationMode::Ins,
+            duration_s: 25.0,
+            seed: 3,
+            outcome: RunOutcome::Completed {
+                distance_m: 2500.0,
+                samples: samples.clone(),
+                vision: vec![VisionRun {
+                    system: "vns".into(),
+                    samples,
+                    initialisations: 1,
+                    tracking_losses: 0,
+                    relocalisations: 0,
+                    motion_model_recoveries: 0,
+                    aiding: None,
+                }],
+            },
+        };
+        let text = record.to_text();
+        let whole = RunRecord::parse(&text).unwrap();
+        assert_eq!(whole.incomplete(0.1), None);
+        // Its last output instant may be up to one period before the mission end.
+        let early = RunRecord {
+            duration_s: 25.099,
+            ..whole.clone()
+        };
+        assert_eq!(early.incomplete(0.1), None);
+        // Cut after any line but the last: it does not parse, or it is incomplete, or (cut
+        // just before a section) it lost a visual system, which the batch's list of systems
+        // tells (`RunSpec::mismatch`).
+        let lines: Vec<&str> = text.lines().collect();
+        for n in 1..lines.len() {
+            let cut = lines[..n].join("\n") + "\n";
+            if let Ok(r) = RunRecord::parse(&cut) {
+                let lost_section = matches!(&r.outcome,
+                    RunOutcome::Completed { vision, .. } if vision.is_empty());
+                assert!(
+                    r.incomplete(0.1).is_some() || lost_section,
+                    "cut after line {n}:\n{cut}"
+                );
+            }
+        }
+        // The INS rows end at t = 20 s: named as such.
+        let ins_cut = text.split("25.000,").next().unwrap();
+        let reason = RunRecord::parse(ins_cut).unwrap().incomplete(0.1).unwrap();
+        assert!(reason.contains("t = 20.000 s"), "{reason}");
+        let failed = RunRecord {
+            outcome: RunOutcome::Failed {
+                reason: "departed".into(),
+            },
+            ..record
+        };
+        assert_eq!(failed.incomplete(0.1), None);
     }
 }
