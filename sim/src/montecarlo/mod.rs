@@ -5,6 +5,8 @@
 //!
 //! Layout of an output directory (`docs/MONTECARLO.md`):
 //! - `runs/run_0007.csv`: one file per seed, written atomically when the run ends;
+//! - `mc.plan.toml` (or `mc_shard_1of4.plan.toml`): what a shard flies, written when it
+//!   starts (`status.rs` reads the plans back to tell a batch in progress);
 //! - `mc.toml` (or `mc_shard_1of4.toml` for a shard): what was run and how it ended.
 
 use std::io;
@@ -19,6 +21,7 @@ use crate::flight::{Flight, FlightSetup, NavigationMode};
 use crate::metrics::MetricsRecorder;
 
 mod run_file;
+pub mod status;
 
 use run_file::seed_of_file_name;
 pub use run_file::{
@@ -284,38 +287,101 @@ impl Batch {
         }
     }
 
-    /// The run of `seed` already at `path`, if it is a run of this batch (see
-    /// [`Batch::resume`]); anything else (missing, unreadable, another set-up) is flown again.
-    fn kept_run(&self, path: &Path, seed: u64) -> Option<RunRecord> {
-        let record = RunRecord::parse(&std::fs::read_to_string(path).ok()?).ok()?;
-        // The same visual systems in the same order (none without a camera).
-        let same_vision = match &record.outcome {
-            RunOutcome::Completed { vision, .. } => {
-                let flown = vision.iter().map(|v| v.system.as_str());
-                match (&self.setup.camera, &self.setup.navigation) {
-                    (Some(c), NavigationMode::Ins) if c.vision_navigation => {
-                        flown.eq(self.setup.vision_systems.iter().map(|s| s.name()))
-                    }
-                    _ => vision.is_empty(),
-                }
-            }
-            RunOutcome::Failed { .. } => true,
+    /// What every run file of this batch holds.
+    pub fn run_spec(&self) -> RunSpec {
+        let vision_systems = match (&self.setup.camera, &self.setup.navigation) {
+            (Some(c), NavigationMode::Ins) if c.vision_navigation => self
+                .setup
+                .vision_systems
+                .iter()
+                .map(|s| s.name().to_owned())
+                .collect(),
+            _ => Vec::new(),
         };
-        (record.seed == seed
-            && record.scenario == self.scenario
-            && record.navigation == self.setup.navigation
-            && (record.duration_s - self.setup.scenario.duration_s).abs() < 5e-4
-            && same_vision)
+        RunSpec {
+            scenario: self.scenario,
+            navigation: self.setup.navigation,
+            duration_s: self.setup.scenario.duration_s,
+            vision_systems,
+        }
+    }
+
+    /// The run of `seed` already at `path`, if it is a whole run of this batch (see
+    /// [`Batch::resume`]); anything else (missing, unreadable, cut short, another set-up) is
+    /// flown again.
+    fn kept_run(&self, spec: &RunSpec, path: &Path, seed: u64) -> Option<RunRecord> {
+        let record = RunRecord::parse(&std::fs::read_to_string(path).ok()?).ok()?;
+        spec.check(&record, seed, self.setup.rates.output_period_s)
+            .is_ok()
             .then_some(record)
     }
 
     /// Manifest file name: `mc.toml`, or `mc_shard_2of4.toml` for a shard (shards may share
     /// an output directory).
     pub fn manifest_name(&self) -> String {
-        match self.shard {
-            Some(s) => format!("mc_shard_{}of{}.toml", s.index, s.count),
-            None => "mc.toml".to_owned(),
+        manifest_name(self.shard)
+    }
+}
+
+/// Manifest file name of `shard` (of the whole batch if `None`).
+pub fn manifest_name(shard: Option<Shard>) -> String {
+    match shard {
+        Some(s) => format!("mc_shard_{}of{}.toml", s.index, s.count),
+        None => "mc.toml".to_owned(),
+    }
+}
+
+/// What every run file of a batch holds beside its seed: a file that says otherwise is not a
+/// run of the batch (`--resume` flies it again, `report --status` counts it to fly).
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+pub struct RunSpec {
+    /// Built-in scenario number.
+    pub scenario: u8,
+    /// What guidance and control fly on.
+    pub navigation: NavigationMode,
+    /// Mission duration, s.
+    pub duration_s: f64,
+    /// The visual systems' sections, in order (none without a camera).
+    pub vision_systems: Vec<String>,
+}
+
+impl RunSpec {
+    /// Whether `record` is a whole run of `seed` of this batch; the error says why not.
+    pub fn check(&self, record: &RunRecord, seed: u64, output_period_s: f64) -> Result<(), String> {
+        if record.seed != seed {
+            return Err(format!("it holds seed {}", record.seed));
         }
+        if record.scenario != self.scenario {
+            return Err(format!(
+                "scenario {}, not {}",
+                record.scenario, self.scenario
+            ));
+        }
+        if record.navigation != self.navigation {
+            return Err(format!(
+                "navigation `{}`, not `{}`",
+                navigation_name(record.navigation),
+                navigation_name(self.navigation)
+            ));
+        }
+        // Durations are written to 1 ms.
+        if (record.duration_s - self.duration_s).abs() >= 5e-4 {
+            return Err(format!(
+                "duration {} s, not {} s",
+                record.duration_s, self.duration_s
+            ));
+        }
+        if let RunOutcome::Completed { vision, .. } = &record.outcome
+            && !vision.iter().map(|v| &v.system).eq(&self.vision_systems)
+        {
+            let names: Vec<&str> = vision.iter().map(|v| v.system.as_str()).collect();
+            return Err(format!(
+                "visual systems [{}], not [{}]",
+                names.join(", "),
+                self.vision_systems.join(", ")
+            ));
+        }
+        record.incomplete(output_period_s).map_or(Ok(()), Err)
     }
 }
 
@@ -356,9 +422,12 @@ pub struct Manifest {
 }
 
 /// Write `text` to `path` through a temporary file and a rename, so that an interrupted
-/// batch never leaves a truncated run file.
+/// batch never leaves a truncated file. The temporary file is this process's own: a shard
+/// resubmitted while its first copy still flies may write the same run at the same time.
 fn write_atomic(path: &Path, text: &str) -> Result<(), McError> {
-    let tmp = path.with_extension("csv.tmp");
+    let mut name = path.file_name().unwrap_or_default().to_owned();
+    name.push(format!(".{}.tmp", std::process::id()));
+    let tmp = path.with_file_name(name);
     std::fs::write(&tmp, text).map_err(io_error(&tmp))?;
     std::fs::rename(&tmp, path).map_err(io_error(path))
 }
@@ -398,11 +467,22 @@ pub struct BatchSummary {
     pub manifest_path: PathBuf,
 }
 
+/// A run of the batch has ended (or was kept by `--resume`).
+#[derive(Debug, Clone, Copy)]
+pub struct RunDone<'a> {
+    /// The run.
+    pub record: &'a RunRecord,
+    /// Kept from an earlier flight (`--resume`), not flown.
+    pub kept: bool,
+    /// Wall time of its flight, s (0 when kept).
+    pub wall_s: f64,
+}
+
 /// Fly `batch` into `out` with [`fly`], calling `on_done` after each run's file is written.
 pub fn run_batch(
     batch: &Batch,
     out: &Path,
-    on_done: impl Fn(&RunRecord) + Sync,
+    on_done: impl Fn(&RunDone<'_>) + Sync,
 ) -> Result<BatchSummary, McError> {
     run_batch_with(
         batch,
@@ -418,12 +498,16 @@ pub fn run_batch_with(
     batch: &Batch,
     out: &Path,
     fly_seed: impl Fn(u64) -> RunRecord + Sync,
-    on_done: impl Fn(&RunRecord) + Sync,
+    on_done: impl Fn(&RunDone<'_>) + Sync,
 ) -> Result<BatchSummary, McError> {
     let seeds = batch.seeds_to_fly();
     let runs_dir = out.join(RUNS_DIR);
     std::fs::create_dir_all(&runs_dir).map_err(io_error(&runs_dir))?;
     check_no_foreign_runs(&runs_dir, &batch.seeds)?;
+    let spec = batch.run_spec();
+    let plan = status::Plan::of(batch, &spec);
+    let plan_path = out.join(status::plan_name(batch.shard));
+    write_atomic(&plan_path, &toml::to_string(&plan)?)?;
     let pool = rayon::ThreadPoolBuilder::new()
         .num_threads(batch.jobs.unwrap_or(0))
         .build()
@@ -434,15 +518,28 @@ pub fn run_batch_with(
             .par_iter()
             .map(|&seed| {
                 let path = runs_dir.join(run_file_name(seed));
-                let record = match batch.resume.then(|| batch.kept_run(&path, seed)).flatten() {
-                    Some(kept) => kept,
+                let kept = batch
+                    .resume
+                    .then(|| batch.kept_run(&spec, &path, seed))
+                    .flatten();
+                let started = std::time::Instant::now();
+                let (record, kept) = match kept {
+                    Some(record) => (record, true),
                     None => {
                         let record = fly_seed(seed);
                         write_atomic(&path, &record.to_text())?;
-                        record
+                        (record, false)
                     }
                 };
-                on_done(&record);
+                on_done(&RunDone {
+                    record: &record,
+                    kept,
+                    wall_s: if kept {
+                        0.0
+                    } else {
+                        started.elapsed().as_secs_f64()
+                    },
+                });
                 Ok(match record.outcome {
                     RunOutcome::Completed { .. } => None,
                     RunOutcome::Failed { reason } => Some(FailedRun { seed, reason }),
@@ -472,8 +569,7 @@ pub fn run_batch_with(
         failed,
     };
     let manifest_path = out.join(batch.manifest_name());
-    let text = toml::to_string(&manifest)?;
-    std::fs::write(&manifest_path, text).map_err(io_error(&manifest_path))?;
+    write_atomic(&manifest_path, &toml::to_string(&manifest)?)?;
     Ok(BatchSummary {
         manifest,
         manifest_path,
