@@ -716,6 +716,9 @@ fn a_batch_in_progress_tells_its_status_and_the_report_names_what_is_missing() {
         "run_0005.csv: not a whole run",
         "time left ≈ 30 s",
         "not started",
+        // Shard 2 has written nothing for 550 s, 18 times its pace.
+        "ago: stalled?",
+        "seeds to fly: 5\n",
     ] {
         assert!(text.contains(expected), "{expected}:\n{text}");
     }

@@ -245,14 +245,18 @@ fn slurm_array_killed_task_resubmitted_merges_as_one_machine() {
     // The status of the partial batch names the cancelled shard and its missing seeds.
     let status = text(&sim(&["report", "--status"], &[&out]).stdout);
     eprintln!("{status}");
+    let lines: Vec<&str> = status.lines().collect();
     let shard_line = |task: u32| {
-        status
-            .lines()
-            .find(|l| l.starts_with(&format!("{task}/{SHARDS} ")))
+        lines
+            .iter()
+            .position(|l| l.starts_with(&format!("{task}/{SHARDS} ")))
             .unwrap_or_else(|| panic!("no line for shard {task}:\n{status}"))
     };
-    // The seeds to fly end the line, after two spaces.
-    let listed = shard_line(KILLED).rsplit("  ").next().unwrap();
+    // The shard's line, then its seeds to fly.
+    let listed = lines[shard_line(KILLED) + 1]
+        .trim()
+        .strip_prefix("seeds to fly: ")
+        .unwrap_or_else(|| panic!("no seeds to fly under shard {KILLED}:\n{status}"));
     let expected: Vec<String> = killed_left.iter().map(u64::to_string).collect();
     assert_eq!(listed, expected.join(", "), "{status}");
     assert!(
@@ -260,7 +264,7 @@ fn slurm_array_killed_task_resubmitted_merges_as_one_machine() {
         "{status}"
     );
     for task in (1..=SHARDS).filter(|&t| t != KILLED) {
-        let state = shard_line(task).split_whitespace().nth(1);
+        let state = lines[shard_line(task)].split_whitespace().nth(4);
         assert_eq!(state, Some("ended"), "{status}");
     }
     // A report of the partial batch says what is missing.

@@ -519,6 +519,12 @@ pub fn format_duration(seconds: f64) -> String {
     }
 }
 
+/// A started shard without a new run for this many times its pace, and at least
+/// [`STALLED_MIN_S`], is marked "stalled?".
+const STALLED_RUNS: f64 = 5.0;
+/// See [`STALLED_RUNS`], s.
+const STALLED_MIN_S: f64 = 60.0;
+
 /// At most `max` seeds, then how many more.
 fn seed_list(seeds: impl Iterator<Item = u64>, max: usize) -> String {
     let all: Vec<u64> = seeds.collect();
@@ -561,42 +567,54 @@ impl Status {
             );
             let _ = writeln!(
                 t,
-                "{:<9} {:<36} {:>5} {:>6} {:>6}  seeds to fly",
-                "shard", "state", "done", "failed", "to fly"
+                "{:<9} {:>5} {:>6} {:>6}  state",
+                "shard", "done", "failed", "to fly"
             );
+            let mean_pace = b.time_left().map(|l| l.per_run_s);
             for s in &b.shards {
-                let state = match s.state {
-                    ShardState::NotStarted => "not started".to_owned(),
-                    ShardState::Ended => "ended".to_owned(),
-                    ShardState::Started => match (s.started, s.last_run) {
-                        (Some(start), Some(last)) => format!(
-                            "started {} ago, last run {} ago",
+                let state = match (s.state, s.started) {
+                    (ShardState::NotStarted, _) => "not started".to_owned(),
+                    (ShardState::Ended, _) => "ended".to_owned(),
+                    (ShardState::Started, None) => "started".to_owned(),
+                    (ShardState::Started, Some(start)) => {
+                        let quiet_since = s.last_run.unwrap_or(start);
+                        let quiet = now
+                            .duration_since(quiet_since)
+                            .map_or(0.0, |d| d.as_secs_f64());
+                        // Quiet for many runs' time: the task probably died (the engine knows).
+                        let stalled = s
+                            .per_run_s()
+                            .or(mean_pace)
+                            .is_some_and(|pace| quiet > (STALLED_RUNS * pace).max(STALLED_MIN_S));
+                        format!(
+                            "started {} ago, {}{}",
                             age(now, start),
-                            age(now, last)
-                        ),
-                        (Some(start), None) => {
-                            format!("started {} ago, no run yet", age(now, start))
-                        }
-                        _ => "started".to_owned(),
-                    },
+                            s.last_run.map_or("no run yet".to_owned(), |last| format!(
+                                "last run {} ago",
+                                age(now, last)
+                            )),
+                            if stalled { ": stalled?" } else { "" }
+                        )
+                    }
                 };
                 let _ = writeln!(
                     t,
-                    "{:<9} {:<36} {:>5} {:>6} {:>6}  {}",
+                    "{:<9} {:>5} {:>6} {:>6}  {state}",
                     s.shard.map_or("all".to_owned(), |x| x.to_string()),
-                    state,
                     s.done.len(),
                     s.failed.len(),
                     s.to_fly.len(),
-                    seed_list(s.to_fly.iter().map(|(seed, _)| *seed), 20)
                 );
+                if !s.to_fly.is_empty() {
+                    let _ = writeln!(
+                        t,
+                        "          seeds to fly: {}",
+                        seed_list(s.to_fly.iter().map(|(seed, _)| *seed), 20)
+                    );
+                }
             }
             let (done, failed, to_fly) = b.totals();
-            let _ = writeln!(
-                t,
-                "{:<9} {:<36} {done:>5} {failed:>6} {to_fly:>6}",
-                "total", ""
-            );
+            let _ = writeln!(t, "{:<9} {done:>5} {failed:>6} {to_fly:>6}", "total");
             for s in &b.shards {
                 for (seed, reason) in &s.to_fly {
                     if let Some(reason) = reason {
