@@ -125,15 +125,20 @@ enum Command {
     /// ODOMETRY / VISION_POSITION_ESTIMATE / GPS_INPUT, fly on its position after GNSS loss,
     /// and log estimate versus truth to DIR/sitl.csv. See docs/SITL.md.
     Sitl(SitlArgs),
-    /// Build the Monte Carlo report (`report.md`, plots) from `mc` directories.
+    /// Build the Monte Carlo report (`report.md`, plots) from `mc` directories; with
+    /// --status, tell how a batch in progress stands instead.
     Report {
         /// Batch directories (holding `runs/`), or parents whose subdirectories are batch
         /// directories (shards copied side by side); runs are merged by seed.
         #[arg(required = true)]
         dirs: Vec<PathBuf>,
         /// Where to write the report (default: the first directory).
-        #[arg(long)]
+        #[arg(long, conflicts_with = "status")]
         out: Option<PathBuf>,
+        /// Write no report: per shard, the runs done, failed and to fly (with their seeds), and
+        /// an estimate of the time left, from the directory's files alone (any engine).
+        #[arg(long)]
+        status: bool,
     },
     /// One of the paper's result tables, ours beside the paper's numbers (Markdown): the
     /// MX tables take `1=DIR` and/or `2=DIR` (scenario #1, #2), the terrain tables `ZONE=DIR`
@@ -296,7 +301,13 @@ fn main() -> Result<()> {
         Command::Mc(args) => cmd::mc::mc(args),
         Command::Render(args) => cmd::render::render(args),
         Command::Sitl(args) => cmd::sitl::sitl(args),
-        Command::Report { dirs, out } => cmd::report::report(dirs, out.as_ref()),
+        Command::Report { dirs, out, status } => {
+            if *status {
+                cmd::report::status(dirs)
+            } else {
+                cmd::report::report(dirs, out.as_ref())
+            }
+        }
         Command::Table { table, inputs, out } => cmd::report::table(*table, inputs, out.as_ref()),
     }
 }

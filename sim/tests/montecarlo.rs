@@ -450,6 +450,10 @@ fn the_report_compares_every_visual_system_on_the_runs_where_all_track() {
     ] {
         assert!(dir.join(png).is_file(), "{png}");
     }
+    // A run without the sections (a file cut just before them) is not merged with the others.
+    write_runs(&dir, &[synthetic_run(6)]);
+    let err = report::report(std::slice::from_ref(&dir), &dir).unwrap_err();
+    assert!(err.to_string().contains("visual systems"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -626,5 +630,135 @@ fn cli_mc_shards_and_report_and_refuses_bad_shards() {
         assert!(!o.status.success() && stderr.contains(bad[0]), "{stderr}");
         assert!(!stderr.contains("panicked"), "{stderr}");
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Sets a file's modification time to `t0 + secs`.
+fn touch_at(path: &Path, t0: std::time::SystemTime, secs: u64) {
+    std::fs::File::options()
+        .write(true)
+        .open(path)
+        .unwrap()
+        .set_modified(t0 + std::time::Duration::from_secs(secs))
+        .unwrap();
+}
+
+/// A batch of 5 seeds in 3 shards, caught in progress: shard 1 ended, shard 2 started and
+/// its last run file was cut at a line, shard 3 never started. The status names each shard's
+/// runs to fly and estimates the time left from the files' times; `report` refuses the cut
+/// file, then names the missing seeds; `--resume` flies exactly those.
+#[test]
+fn a_batch_in_progress_tells_its_status_and_the_report_names_what_is_missing() {
+    use montecarlo::status::{self, ShardState};
+    let dir = temp_dir("status");
+    let (out, whole) = (dir.join("batch"), dir.join("whole"));
+    let seeds: Vec<u64> = (1..=5).collect();
+    let shard = |i: u32| Some(Shard { index: i, count: 3 });
+    for i in [1, 2] {
+        montecarlo::run_batch(&batch(seeds.clone(), shard(i)), &out, |_| {}).unwrap();
+    }
+    // Shard 2 (seeds 2 and 5) "dies": no manifest, seed 5 cut after its 3rd row.
+    std::fs::remove_file(out.join("mc_shard_2of3.toml")).unwrap();
+    let run5 = out.join("runs/run_0005.csv");
+    let text = std::fs::read_to_string(&run5).unwrap();
+    let rows = text
+        .lines()
+        .position(|l| l == montecarlo::RUN_COLUMNS)
+        .unwrap()
+        + 4;
+    let cut: String = text.lines().take(rows).map(|l| format!("{l}\n")).collect();
+    std::fs::write(&run5, cut).unwrap();
+    // Times: shard 1 started at t0 and wrote a run every 4 s; shard 2 started at t0 + 20 s and
+    // wrote seed 2 at t0 + 50 s (30 s per run).
+    let t0 = std::time::SystemTime::now() - std::time::Duration::from_secs(600);
+    touch_at(&out.join("mc_shard_1of3.plan.toml"), t0, 0);
+    touch_at(&out.join("runs/run_0001.csv"), t0, 4);
+    touch_at(&out.join("runs/run_0004.csv"), t0, 8);
+    touch_at(&out.join("mc_shard_1of3.toml"), t0, 9);
+    touch_at(&out.join("mc_shard_2of3.plan.toml"), t0, 20);
+    touch_at(&out.join("runs/run_0002.csv"), t0, 50);
+
+    let st = status::status(std::slice::from_ref(&out)).unwrap();
+    assert_eq!(st.batches.len(), 1, "{st:?}");
+    assert!(
+        st.unplanned.is_empty() && st.unreadable.is_empty(),
+        "{st:?}"
+    );
+    let b = &st.batches[0];
+    assert_eq!((b.scenario, b.seed_range), (2, [1, 5]));
+    let states: Vec<ShardState> = b.shards.iter().map(|s| s.state).collect();
+    assert_eq!(
+        states,
+        [
+            ShardState::Ended,
+            ShardState::Started,
+            ShardState::NotStarted
+        ]
+    );
+    assert_eq!(b.shards[0].done, vec![1, 4]);
+    assert_eq!(b.shards[1].done, vec![2]);
+    let to_fly = |i: usize| -> Vec<u64> { b.shards[i].to_fly.iter().map(|t| t.0).collect() };
+    assert_eq!(to_fly(0), Vec::<u64>::new());
+    assert_eq!(to_fly(1), vec![5]);
+    assert_eq!(to_fly(2), vec![3]);
+    assert_eq!(b.shards[2].to_fly[0].1, None, "seed 3 has no file");
+    let why = b.shards[1].to_fly[0].1.clone().unwrap();
+    assert!(why.contains("t = 20.000 s"), "{why}");
+    assert_eq!(b.totals(), (3, 0, 2));
+    // Shard 1 flew a run every 4 s, shard 2 every 30 s; shard 3, not measured, at the mean
+    // (17 s). The longest: shard 2's one run at its own rate, 30 s.
+    let left = b.time_left().unwrap();
+    assert!((left.seconds - 30.0).abs() < 1e-6, "{left:?}");
+    assert!((left.per_run_s - 17.0).abs() < 1e-6, "{left:?}");
+    let text = st.render(std::time::SystemTime::now());
+    for expected in [
+        "shards with runs to fly: 2,3",
+        "run_0005.csv: not a whole run",
+        "time left ≈ 30 s",
+        "not started",
+        // Shard 2 has written nothing for 550 s, 18 times its pace.
+        "ago: stalled?",
+        "seeds to fly: 5\n",
+    ] {
+        assert!(text.contains(expected), "{expected}:\n{text}");
+    }
+
+    // The report refuses the cut file, then names the missing seeds.
+    let err = report::report(std::slice::from_ref(&out), &out).unwrap_err();
+    assert!(err.to_string().contains("run_0005.csv"), "{err}");
+    std::fs::rename(&run5, dir.join("cut_0005.csv")).unwrap();
+    let r = report::report(std::slice::from_ref(&out), &out).unwrap();
+    assert_eq!(r.missing, vec![3, 5]);
+    let md = std::fs::read_to_string(&r.report_path).unwrap();
+    assert!(md.contains("**Incomplete batch**"), "{md}");
+    assert!(md.contains("no run file: 3, 5."), "{md}");
+    std::fs::rename(dir.join("cut_0005.csv"), &run5).unwrap();
+
+    // Resuming flies the cut run, then the last shard; the batch is then whole and its files
+    // those of one batch flown in one go.
+    let flown = std::sync::Mutex::new(Vec::new());
+    for i in [2, 3] {
+        let mut again = batch(seeds.clone(), shard(i));
+        again.resume = true;
+        montecarlo::run_batch_with(
+            &again,
+            &out,
+            |seed| {
+                flown.lock().unwrap().push(seed);
+                montecarlo::fly(2, &again.setup, seed)
+            },
+            |_| {},
+        )
+        .unwrap();
+    }
+    assert_eq!(flown.into_inner().unwrap(), vec![5, 3]);
+    let st = status::status(std::slice::from_ref(&out)).unwrap();
+    assert_eq!(st.batches[0].totals(), (5, 0, 0));
+    assert!(st.render(std::time::SystemTime::now()).contains("complete"));
+    montecarlo::run_batch(&batch(seeds, None), &whole, |_| {}).unwrap();
+    let r = report::report(std::slice::from_ref(&out), &out).unwrap();
+    report::report(std::slice::from_ref(&whole), &whole).unwrap();
+    assert!(r.missing.is_empty());
+    assert_eq!(files_under(&out), files_under(&whole));
     std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -13,6 +13,19 @@ pub(crate) fn report(dirs: &[PathBuf], out: Option<&PathBuf>) -> Result<()> {
     };
     let started = Instant::now();
     let summary = ianav_sim::report::report(dirs, out)?;
+    if !summary.missing.is_empty() {
+        eprintln!(
+            "warning: incomplete batch: no run file for {} seeds of its plan ({}); \
+             `ianav-sim report --status` shows their shards",
+            summary.missing.len(),
+            summary
+                .missing
+                .iter()
+                .map(u64::to_string)
+                .collect::<Vec<_>>()
+                .join(", ")
+        );
+    }
     println!(
         "{} runs ({} completed) in {:.2} s; report: {}",
         summary.runs,
@@ -20,6 +33,13 @@ pub(crate) fn report(dirs: &[PathBuf], out: Option<&PathBuf>) -> Result<()> {
         started.elapsed().as_secs_f64(),
         summary.report_path.display()
     );
+    Ok(())
+}
+
+/// `report --status`: how the batches of `dirs` stand.
+pub(crate) fn status(dirs: &[PathBuf]) -> Result<()> {
+    let status = ianav_sim::montecarlo::status::status(dirs)?;
+    print!("{}", status.render(std::time::SystemTime::now()));
     Ok(())
 }
 

@@ -50,7 +50,7 @@ pub enum ReportError {
         source: io::Error,
     },
     /// A run file is malformed.
-    #[error("{path}: {message}")]
+    #[error("{path}: {message} (a file cut short? `ianav-sim mc … --resume` flies it again)")]
     RunFile {
         /// File.
         path: String,
@@ -78,9 +78,22 @@ pub enum ReportError {
         /// What differs.
         what: String,
     },
+    /// A run file does not hold a whole run (cut short).
+    #[error(
+        "{path}: not a whole run: {reason}; fly it again with `ianav-sim mc … --resume` (or delete it)"
+    )]
+    Incomplete {
+        /// File.
+        path: String,
+        /// What is missing.
+        reason: String,
+    },
     /// A plot could not be drawn.
     #[error(transparent)]
     Plot(#[from] plots::PlotError),
+    /// The batch directories could not be listed.
+    #[error(transparent)]
+    Batch(#[from] crate::montecarlo::McError),
 }
 
 fn io_error(path: &Path) -> impl FnOnce(io::Error) -> ReportError + '_ {
@@ -243,20 +256,10 @@ const METRICS: [Metric; 7] = [
 /// The run files of `dirs`: each is a batch directory (holding `runs/`) or a parent whose
 /// immediate subdirectories are batch directories (shards copied side by side).
 pub fn run_files(dirs: &[PathBuf]) -> Result<Vec<PathBuf>, ReportError> {
-    let mut batch_dirs = Vec::new();
-    for dir in dirs {
-        if dir.join(RUNS_DIR).is_dir() {
-            batch_dirs.push(dir.join(RUNS_DIR));
-            continue;
-        }
-        let mut subs: Vec<PathBuf> = std::fs::read_dir(dir)
-            .map_err(io_error(dir))?
-            .filter_map(|e| e.ok().map(|e| e.path().join(RUNS_DIR)))
-            .filter(|p| p.is_dir())
-            .collect();
-        subs.sort();
-        batch_dirs.extend(subs);
-    }
+    let batch_dirs: Vec<PathBuf> = crate::montecarlo::status::batch_dirs(dirs)?
+        .into_iter()
+        .map(|d| d.join(RUNS_DIR))
+        .collect();
     let mut files = Vec::new();
     for runs in &batch_dirs {
         for entry in std::fs::read_dir(runs).map_err(io_error(runs))? {
@@ -276,7 +279,8 @@ pub fn run_files(dirs: &[PathBuf]) -> Result<Vec<PathBuf>, ReportError> {
 }
 
 /// Read the runs of `dirs`, sorted by seed. The same seed in two files is accepted only if
-/// the files are identical (a shard copied twice).
+/// the files are identical (a shard copied twice); a file cut short is an error, and so are
+/// runs of different experiments (scenario, navigation, duration or visual systems).
 pub fn load_runs(dirs: &[PathBuf]) -> Result<Vec<RunRecord>, ReportError> {
     let mut by_seed: BTreeMap<u64, (PathBuf, String, RunRecord)> = BTreeMap::new();
     for path in run_files(dirs)? {
@@ -285,6 +289,14 @@ pub fn load_runs(dirs: &[PathBuf]) -> Result<Vec<RunRecord>, ReportError> {
             path: path.display().to_string(),
             message,
         })?;
+        if let Some(reason) =
+            record.incomplete(crate::flight::RatesConfig::default().output_period_s)
+        {
+            return Err(ReportError::Incomplete {
+                path: path.display().to_string(),
+                reason,
+            });
+        }
         if let Some((first, first_text, _)) = by_seed.get(&record.seed) {
             if *first_text != text {
                 return Err(ReportError::DuplicateSeed {
@@ -298,6 +310,14 @@ pub fn load_runs(dirs: &[PathBuf]) -> Result<Vec<RunRecord>, ReportError> {
         by_seed.insert(record.seed, (path, text, record));
     }
     let runs: Vec<RunRecord> = by_seed.into_values().map(|(_, _, r)| r).collect();
+    // The visual systems of a completed run (a file cut just before a section loses one).
+    let systems = |r: &RunRecord| match &r.outcome {
+        RunOutcome::Completed { vision, .. } => {
+            Some(vision.iter().map(|v| v.system.clone()).collect::<Vec<_>>())
+        }
+        RunOutcome::Failed { .. } => None,
+    };
+    let first_systems = runs.iter().find_map(|r| systems(r).map(|s| (r.seed, s)));
     if let Some(first) = runs.first() {
         for r in &runs {
             let what = if r.navigation != first.navigation {
@@ -316,6 +336,14 @@ pub fn load_runs(dirs: &[PathBuf]) -> Result<Vec<RunRecord>, ReportError> {
                 Some(format!(
                     "duration {} s, seed {} has {} s",
                     r.duration_s, first.seed, first.duration_s
+                ))
+            } else if let (Some(own), Some((seed, theirs))) = (systems(r), &first_systems)
+                && own != *theirs
+            {
+                Some(format!(
+                    "the visual systems [{}], seed {seed} has [{}]",
+                    own.join(", "),
+                    theirs.join(", ")
                 ))
             } else {
                 None
@@ -452,10 +480,22 @@ pub struct ReportSummary {
     pub completed: usize,
     /// Attitude-norm error at `t_end` over the completed runs, if any.
     pub att_norm_deg: Option<Stats>,
+    /// Seeds of the batch's plan without a run file (the report says so).
+    pub missing: Vec<u64>,
 }
 
 /// Write `report.md`, the plots and the time-series file of `runs` (sorted by seed) to `out`.
 pub fn write_report(runs: &[RunRecord], out: &Path) -> Result<ReportSummary, ReportError> {
+    write_batch_report(runs, &[], out)
+}
+
+/// [`write_report`] of a batch of which the seeds `missing` have no run (yet): the report
+/// names them.
+pub fn write_batch_report(
+    runs: &[RunRecord],
+    missing: &[u64],
+    out: &Path,
+) -> Result<ReportSummary, ReportError> {
     std::fs::create_dir_all(out).map_err(io_error(out))?;
     let completed: Vec<(&RunRecord, f64, &[NseSample])> = runs
         .iter()
@@ -496,6 +536,16 @@ pub fn write_report(runs: &[RunRecord], out: &Path) -> Result<ReportSummary, Rep
             seed_ranges(&seeds),
             completed.len(),
             failed.len()
+        );
+    }
+    if !missing.is_empty() {
+        let _ = writeln!(
+            md,
+            "**Incomplete batch**: the `mc` plan and manifest files name {} more seeds, which \
+             have no run file: {}. `ianav-sim report --status DIR` shows their shards; \
+             `ianav-sim mc … --resume` flies them.\n",
+            missing.len(),
+            seed_ranges(missing)
         );
     }
     if !failed.is_empty() {
@@ -604,13 +654,20 @@ pub fn write_report(runs: &[RunRecord], out: &Path) -> Result<ReportSummary, Rep
         runs: runs.len(),
         completed: completed.len(),
         att_norm_deg: att_norm,
+        missing: missing.to_vec(),
     })
 }
 
-/// Read the runs of `dirs` and write the report to `out`.
+/// Read the runs of `dirs` and write the report to `out`; seeds that the batch's plan or
+/// manifest files name and that have no run file are named in the report (and returned).
 pub fn report(dirs: &[PathBuf], out: &Path) -> Result<ReportSummary, ReportError> {
     let runs = load_runs(dirs)?;
-    write_report(&runs, out)
+    let planned = crate::montecarlo::status::planned_seeds(dirs)?;
+    let missing: Vec<u64> = planned
+        .into_iter()
+        .filter(|s| runs.binary_search_by_key(s, |r| r.seed).is_err())
+        .collect();
+    write_batch_report(&runs, &missing, out)
 }
 
 #[cfg(test)]
