@@ -105,7 +105,7 @@ pub(super) fn eval(
 }
 
 /// Solved pixels of one row handled together by [`fast_run`] at most.
-pub(super) const FAST_RUN: usize = 64;
+pub(super) const FAST_RUN: usize = 128;
 
 /// What [`fast_run`] found: the fast path's `(t, x, y)` where `ok`.
 pub(super) struct FastRun {
