@@ -1,7 +1,7 @@
 //! Criterion benches of the INS (docs/INS.md, "Performance"): one full IMU step of the
 //! cascade (air data, attitude, position) at 100 Hz with GNSS fixes at 1 Hz, and one step in
-//! GNSS-denied mode. Budget: ≤ 20 µs median per step (docs/INS.md); the simulator sets itself
-//! 5 µs for its Monte Carlo runs (docs/PERFORMANCE.md).
+//! GNSS-denied mode. Budget: ≤ 5 µs median per step, since every Monte Carlo run takes 100 of
+//! them per simulated second (docs/PERFORMANCE.md, "INS").
 //!
 //! The input is a precomputed, exactly consistent stream of straight level flight (air data,
 //! magnetometer and IMU every 10 ms, GNSS every second); each timed run starts from a clone of
