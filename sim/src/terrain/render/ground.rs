@@ -146,6 +146,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     /// predicted from the one before), in turn. Row 0 of a block is predicted from the left
     /// only, column after column; the rows below it are predicted from above, so their solved
     /// columns are independent of one another and go through [`Self::solve_from_above`].
+    #[inline(always)]
     pub(super) fn solve_rows(
         &self,
         blk: &mut GroundBlock,
@@ -174,6 +175,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     /// fast paths of the columns with a ground pixel above first, [`FAST_RUN`] at a time in
     /// vectorised phases ([`fast_run`]), then, column after column, [`intersect`] where the fast
     /// path failed and the left-to-right prediction where the pixel above is sky.
+    #[inline(always)]
     fn solve_from_above(
         &self,
         blk: &mut GroundBlock,
@@ -314,6 +316,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     /// odd rows as midpoints of the rows above and below (the block's extra last row is the
     /// first row of the next block, solved here too; the image's last row, when odd, is
     /// solved directly).
+    #[inline(always)]
     pub(super) fn solve_interpolated(
         &self,
         blk: &mut GroundBlock,
