@@ -35,10 +35,11 @@
 //!   Each level's tiles are copied side by side into one atlas, kept for the next frame
 //!   ([`AtlasCache`]), which usually sees the same tiles.
 //! - Speed without changing a bit: the hot loops are split into phases of independent,
-//!   branch-free iterations (midpoints, levels of detail, texel coordinates, blends) that the
-//!   compiler vectorises, solves below a block's first row run four at a time, and the main
-//!   pass has an AVX2 build chosen at run time ([`pass::MainPass`]). The Monte Carlo run files, which
-//!   hold the VNS's errors on these images, stay reproducible (docs/PERFORMANCE.md).
+//!   branch-free iterations (the solves of rows predicted from above, midpoints, levels of
+//!   detail, texel coordinates, blends) that the compiler vectorises, and the main pass,
+//!   geometry included, has an AVX2 build chosen at run time ([`pass::MainPass`]). The Monte
+//!   Carlo run files, which hold the visual systems' errors on these images, stay reproducible
+//!   (docs/PERFORMANCE.md).
 
 //!
 //! The stages, one file each:
