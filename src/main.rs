@@ -69,6 +69,11 @@ enum Command {
         /// `vision.pose.max_iterations=5`. An unknown key is an error.
         #[arg(long = "set", value_name = "KEY=VALUE")]
         overrides: Vec<String>,
+        /// Also write the INS's internal estimates at the same solutions to `OUT/states.csv`
+        /// (air data, wind, specific force, sensor errors, magnetic-model error, reference
+        /// attitude error, GNSS NIS; columns in docs/REPLAY.md).
+        #[arg(long)]
+        states: bool,
     },
     /// Print the version and exit.
     Version,
@@ -101,7 +106,8 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             out,
             every,
             overrides,
-        }) => replay(&log, &out, every, &overrides),
+            states,
+        }) => replay(&log, &out, every, &overrides, states),
         Some(Command::Run { config, record }) => {
             let mut p = preflight(&config).map_err(|e| in_file(&config, e))?;
             p.config.record = record;
@@ -124,7 +130,13 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
 }
 
 /// `ianav replay`: the log through the navigator, the solutions to `out/solutions.csv`.
-fn replay(log: &Path, out: &Path, every: u64, overrides: &[String]) -> anyhow::Result<()> {
+fn replay(
+    log: &Path,
+    out: &Path,
+    every: u64,
+    overrides: &[String],
+    states: bool,
+) -> anyhow::Result<()> {
     use std::io::{BufReader, BufWriter, Write};
     let file = std::fs::File::open(log).with_context(|| log.display().to_string())?;
     let reader = ianav::io::sensor_log::SensorLogReader::new(BufReader::new(file))
@@ -133,9 +145,27 @@ fn replay(log: &Path, out: &Path, every: u64, overrides: &[String]) -> anyhow::R
     let path = out.join("solutions.csv");
     let mut csv =
         BufWriter::new(std::fs::File::create(&path).with_context(|| path.display().to_string())?);
-    let s = ianav::nav::replay::replay_to_csv_with(reader, overrides, every, &mut csv)
-        .with_context(|| log.display().to_string())?;
+    let states_path = out.join("states.csv");
+    let mut states_csv = match states {
+        true => Some(BufWriter::new(
+            std::fs::File::create(&states_path)
+                .with_context(|| states_path.display().to_string())?,
+        )),
+        false => None,
+    };
+    let s = ianav::nav::replay::replay_to_csvs(
+        reader,
+        overrides,
+        every,
+        &mut csv,
+        states_csv.as_mut().map(|w| w as &mut dyn Write),
+    )
+    .with_context(|| log.display().to_string())?;
     csv.flush().with_context(|| path.display().to_string())?;
+    if let Some(mut w) = states_csv {
+        w.flush()
+            .with_context(|| states_path.display().to_string())?;
+    }
     println!(
         "{} events, {} solutions ({} written to {}), {} starts",
         s.events,

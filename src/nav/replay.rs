@@ -17,6 +17,16 @@ use crate::io::sensor_log::{SensorLogError, SensorLogReader};
 pub const CSV_HEADER: &str = "t_us,lat_rad,lon_rad,h_m,v_n_mps,v_e_mps,v_d_mps,q_w,q_x,q_y,q_z,\
                               sigma_n_m,sigma_e_m,sigma_d_m,gnss_denied,reset_counter";
 
+/// Columns of the states CSV (`ianav replay --states`): the INS's internal estimates at the
+/// same solutions, for looking into a flight: air data (TAS, AoA, AoS), the wind, the
+/// specific force, the sensor-error states (gyro, accelerometer, magnetometer), the magnetic
+/// model error `ΔB_n`, the reference's attitude error and the last GNSS NIS.
+pub const STATES_HEADER: &str = "t_us,tas_mps,aoa_rad,aos_rad,wind_n_mps,wind_e_mps,wind_d_mps,\
+                                 f_x_mps2,f_y_mps2,f_z_mps2,e_gyr_x_rps,e_gyr_y_rps,e_gyr_z_rps,\
+                                 e_acc_x_mps2,e_acc_y_mps2,e_acc_z_mps2,e_mag_x_nt,e_mag_y_nt,\
+                                 e_mag_z_nt,delta_b_n_nt,delta_b_e_nt,delta_b_d_nt,ref_err_x_rad,\
+                                 ref_err_y_rad,ref_err_z_rad,gnss_nis";
+
 /// Errors of a replay.
 #[derive(Debug, thiserror::Error)]
 pub enum ReplayError {
@@ -168,14 +178,33 @@ pub fn replay_to_csv_with<R: Read>(
     every: u64,
     out: &mut impl Write,
 ) -> Result<ReplaySummary, ReplayError> {
+    replay_to_csvs(reader, overrides, every, out, None)
+}
+
+/// [`replay_to_csv_with`], and the INS's internal estimates of the same solutions
+/// ([`STATES_HEADER`]) to `states` if given.
+pub fn replay_to_csvs<R: Read>(
+    reader: SensorLogReader<R>,
+    overrides: &[String],
+    every: u64,
+    out: &mut impl Write,
+    mut states: Option<&mut dyn Write>,
+) -> Result<ReplaySummary, ReplayError> {
     let cfg = config_with_overrides(&reader, overrides)?;
     writeln!(out, "{CSV_HEADER}")?;
+    if let Some(w) = states.as_mut() {
+        writeln!(w, "{STATES_HEADER}")?;
+    }
     let every = every.max(1);
     let (mut k, mut written, mut line) = (0_u64, 0_u64, String::with_capacity(320));
     let mut summary = replay(reader, &cfg, |sol| {
         if k.is_multiple_of(every) {
             csv_line(sol, &mut line);
             writeln!(out, "{line}")?;
+            if let Some(w) = states.as_mut() {
+                states_line(sol, &mut line);
+                writeln!(w, "{line}")?;
+            }
             written += 1;
         }
         k += 1;
@@ -183,6 +212,34 @@ pub fn replay_to_csv_with<R: Read>(
     })?;
     summary.written = written;
     Ok(summary)
+}
+
+/// One line (no newline) of the states CSV of `sol` into `line`.
+pub fn states_line(sol: &NavSolution, line: &mut String) {
+    line.clear();
+    let ins = &sol.ins;
+    let _ = write!(
+        line,
+        "{},{},{},{}",
+        sol.t_us, ins.tas_mps, ins.aoa_rad, ins.aos_rad
+    );
+    for v in [
+        &ins.wind_ned_mps,
+        &ins.f_ib_b_mps2,
+        &ins.e_gyr_rps,
+        &ins.e_acc_mps2,
+        &ins.e_mag_nt,
+        &ins.delta_b_n_nt,
+        &ins.ref_attitude_err_rad,
+    ] {
+        let _ = write!(line, ",{},{},{}", v.x, v.y, v.z);
+    }
+    match ins.gnss_nis {
+        Some(nis) => {
+            let _ = write!(line, ",{nis}");
+        }
+        None => line.push(','),
+    }
 }
 
 /// One CSV line (no newline) of `sol` into `line`.
