@@ -23,7 +23,8 @@
 //! * gyro: `ω̃_ib = w_nb + C_bn (w_ie_n + w_en_n) + E_gyr`;
 //! * accelerometer: `f̃ = w_nb × (C_bn v_tashf_n) + C_bn a_n + E_acc` with
 //!   `a_n = w_en_n × v_n + 2 w_ie_n × v_n − g_n` and `v_tashf_n = v_n − v_lf_n`; the time
-//!   derivative of the air-relative velocity in body axes is neglected, its variance is in R;
+//!   derivative of the air-relative velocity in body axes is neglected, its variance is in R
+//!   (and, optionally, a relative error of the turn term `w × u`);
 //! * magnetometer: `B̃ = C_bn (B_model_n − ΔB_n) + E_mag`.
 //!
 //! With `C_bn(q̂ ∘ Exp(δθ)) v ≈ C_bn v + [C_bn v]× δθ`, the Jacobians are
@@ -77,6 +78,9 @@ pub(crate) struct AttitudeContext {
     pub e_acc_b: Vector3<f64>,
     /// Model magnetic field at the position, NED, nT (`None`: model unavailable).
     pub b_model_n: Option<Vector3<f64>>,
+    /// `r_accel_turn_rel² · r_accel_turn_correlation_s / reference_period_s`: the turn
+    /// term's variance per (m/s²)² of modelled turn acceleration.
+    pub turn_var_per_m2ps4: f64,
 }
 
 /// Initial estimates of the attitude filter and their σ (docs/REFERENCES.md A1.9).
@@ -232,10 +236,21 @@ impl AttitudeFilter {
         // Gust accelerations of a frozen field scale with the airspeed squared.
         let turbulence_scale =
             ctx.v_tashf_n.norm_squared() / cfg.r_accel_turbulence_ref_tas_mps.powi(2);
+        // The modelled turn acceleration is uncertain by a fraction of itself for a whole turn.
+        let turn_var = match ctx.turn_var_per_m2ps4 {
+            0.0 => 0.0,
+            k => {
+                k * self
+                    .w_nb_b
+                    .cross(&(self.q_nb.inverse() * ctx.v_tashf_n))
+                    .norm_squared()
+            }
+        };
         for i in 0..3 {
             r[i] = cfg.r_gyro_rad2ps2 * r_scale;
             r[3 + i] = cfg.r_accel_white_m2ps4 * r_scale
-                + cfg.r_accel_turbulence_m2ps4[i] * turbulence_scale;
+                + cfg.r_accel_turbulence_m2ps4[i] * turbulence_scale
+                + turn_var;
             r[6 + i] = cfg.r_mag_nt2;
         }
         y.fixed_rows_mut::<3>(0).copy_from(gyro_rps);
@@ -399,6 +414,7 @@ mod tests {
 
     fn context() -> AttitudeContext {
         AttitudeContext {
+            turn_var_per_m2ps4: 0.0,
             w_in_n: Vector3::new(5e-5, 3e-6, -5.2e-5),
             a_n: Vector3::new(0.3, -0.2, -9.8),
             v_tashf_n: Vector3::new(25.0, 12.0, -1.0),
@@ -482,6 +498,73 @@ mod tests {
             );
         }
         assert!(AttitudeFilterConfig::default().body_rate_lag_s(0.01) < MAX_BODY_RATE_LAG_S);
+    }
+
+    /// A coordinated 50°-bank turn at 15 m/s (PX4 SIH's) flown at −2.4° of angle of attack
+    /// while the model takes the air velocity along body x (no vane): `w × u` is then wrong
+    /// by `q V sin α` ≈ 0.35 m/s² along x for the whole turn, no magnetometer. The accelerometer
+    /// update turns that into a heading error; with `r_accel_turn_rel` = 0.1 the model's
+    /// uncertainty covers it and the heading error after 8 s of turn is at most half of it,
+    /// while in straight flight (w = 0) the term is zero and nothing changes.
+    #[test]
+    fn a_turn_model_error_turns_the_heading_less_with_the_turn_term() {
+        let (v, bank, aoa, dt) = (15.0, 50f64.to_radians(), -2.4f64.to_radians(), 0.01);
+        let g = 9.80665;
+        let turn_rate = g * bank.tan() / v;
+        let w_b = Vector3::new(0.0, turn_rate * bank.sin(), turn_rate * bank.cos());
+        let u_true = v * Vector3::new(aoa.cos(), 0.0, aoa.sin());
+        let heading_error_deg = |rel: f64, straight: bool| {
+            // SIH's IMU noise and the matching body-rate Q̃ (tools/sitl/px4.py --sih-imu).
+            let cfg = AttitudeFilterConfig {
+                r_accel_turn_rel: rel,
+                r_gyro_rad2ps2: 2.3e-3,
+                gyro_noise_var_rad2ps2: 2.3e-3,
+                q_w_nb_rad2ps2: 4.1e-3,
+                r_accel_white_m2ps4: 0.42,
+                ..AttitudeFilterConfig::default()
+            };
+            let w = if straight { Vector3::zeros() } else { w_b };
+            let mut q_true = so3::from_euler_zyx(0.3, 0.0, if straight { 0.0 } else { bank });
+            let init = AttitudeInit {
+                q_nb: q_true,
+                w_nb_b: w,
+                e_gyr: Vector3::zeros(),
+                e_gyr_sigma: Vector3::repeat(1e-6),
+                e_mag: Vector3::zeros(),
+                e_mag_sigma: Vector3::repeat(1.0),
+                delta_b_n: Vector3::zeros(),
+                delta_b_n_sigma: Vector3::repeat(1.0),
+            };
+            let mut f = AttitudeFilter::new(&cfg, &init, no_reference_error());
+            let gravity_n = Vector3::new(0.0, 0.0, g);
+            for _ in 0..800 {
+                q_true *= so3::exp(&(w * dt));
+                f.predict(&cfg, dt, 1.0);
+                let ctx = AttitudeContext {
+                    w_in_n: Vector3::zeros(),
+                    a_n: -gravity_n,
+                    // The model's air velocity: along body x of the filter's own attitude.
+                    v_tashf_n: f.q_nb * Vector3::new(v, 0.0, 0.0),
+                    e_acc_b: Vector3::zeros(),
+                    b_model_n: None,
+                    turn_var_per_m2ps4: cfg.r_accel_turn_rel.powi(2)
+                        * cfg.r_accel_turn_correlation_s
+                        / dt,
+                };
+                let accel = w.cross(&u_true) - q_true.inverse() * gravity_n;
+                f.update(&cfg, &ctx, &w, &accel, None, 1.0).unwrap();
+            }
+            let yaw = |q: &UnitQuaternion<f64>| q.euler_angles().2;
+            let e = yaw(&f.q_nb) - yaw(&q_true);
+            e.sin().atan2(e.cos()).to_degrees().abs()
+        };
+        let (without, with) = (heading_error_deg(0.0, false), heading_error_deg(0.1, false));
+        assert!(
+            without > 0.2,
+            "the model error turns the heading: {without}°"
+        );
+        assert!(with < 0.5 * without, "{with}° against {without}°");
+        assert_eq!(heading_error_deg(0.0, true), heading_error_deg(0.1, true));
     }
 
     #[test]

@@ -135,6 +135,22 @@ pub struct AttitudeFilterConfig {
     /// Per-sample gyro white-noise variance at the reference period (P₀ of `w_nb_b`),
     /// (rad/s)².
     pub gyro_noise_var_rad2ps2: f64,
+    /// Relative σ of the modelled turn acceleration `w × u` (the centripetal term of the
+    /// accelerometer model): the angle-of-attack and sideslip guesses without vanes, the
+    /// airspeed's scale and an uncoordinated turn make it wrong by a few percent for as long
+    /// as the turn lasts. Enters R on each axis as `(rel · |w × u|)²` times
+    /// `r_accel_turn_correlation_s` over the reference period (equivalent white noise).
+    /// 0 (the paper's: 10° of bank, vanes) leaves it out; beside PX4 SIH (50° of bank, no
+    /// vanes) 0.1 halved the heading error after the GNSS loss (docs/INS.md, "Steep turns").
+    #[serde(default)]
+    pub r_accel_turn_rel: f64,
+    /// Correlation time of that error, s (a turn's duration).
+    #[serde(default = "default_r_accel_turn_correlation_s")]
+    pub r_accel_turn_correlation_s: f64,
+}
+
+fn default_r_accel_turn_correlation_s() -> f64 {
+    1.0
 }
 
 /// Q̃_w / R_gyro of the paper's settings (1e-6 / 5.63e-7): the body-rate state then lags the
@@ -179,6 +195,8 @@ impl Default for AttitudeFilterConfig {
             r_mag_nt2: 2e6,
             p0_attitude_sigma_deg: 0.057_735,
             gyro_noise_var_rad2ps2: 5.63e-7,
+            r_accel_turn_rel: 0.0,
+            r_accel_turn_correlation_s: default_r_accel_turn_correlation_s(),
         }
     }
 }
@@ -456,6 +474,11 @@ impl InsConfig {
         positive("attitude.r_mag_nt2", t.r_mag_nt2)?;
         positive("attitude.p0_attitude_sigma_deg", t.p0_attitude_sigma_deg)?;
         non_negative("attitude.gyro_noise_var_rad2ps2", t.gyro_noise_var_rad2ps2)?;
+        non_negative("attitude.r_accel_turn_rel", t.r_accel_turn_rel)?;
+        positive(
+            "attitude.r_accel_turn_correlation_s",
+            t.r_accel_turn_correlation_s,
+        )?;
         let p = &self.position;
         non_negative("position.q_position_m2", p.q_position_m2)?;
         non_negative("position.q_velocity_m2ps2", p.q_velocity_m2ps2)?;

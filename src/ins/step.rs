@@ -76,6 +76,9 @@ pub(super) fn run_step(
         v_tashf_n: prev.v_n - prev.wind_n,
         e_acc_b: prev.e_acc,
         b_model_n,
+        turn_var_per_m2ps4: cfg.attitude.r_accel_turn_rel.powi(2)
+            * cfg.attitude.r_accel_turn_correlation_s
+            / cfg.reference_period_s,
     };
     for _ in 0..step.n_sub {
         core.att
