@@ -324,6 +324,7 @@ pub fn spawn(
                                         wind_gust_sigma_mps = b.wind_gust_sigma_mps,
                                         wind_air_bias_sigma_mps = b.wind_air_bias_sigma_mps,
                                         wind_attitude_sigma_mps = b.wind_attitude_sigma_mps,
+                                        airspeed_correction_mps = b.airspeed_correction_mps,
                                         gust_sigma_x_mps = g.x,
                                         gust_sigma_y_mps = g.y,
                                         gust_sigma_z_mps = g.z,

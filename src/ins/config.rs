@@ -249,6 +249,24 @@ pub struct PositionFilterConfig {
     /// average out, added to the reported position variance, to the altitude variance behind
     /// Δp and to the dead-reckoning start, m (docs/REFERENCES.md A2.5: 8 m at the start of a run).
     pub gnss_bias_sigma_m: f64,
+    /// Estimate an airspeed bias while GNSS is available and correct the dead reckoning by
+    /// it: over the wind's window the raw wind is `w + c δ` (`c` the horizontal direction of
+    /// the air velocity, `δ` the airspeed correction), solvable once the window holds turns
+    /// (least squares; [`Self::airspeed_bias_min_heading_spread`]). Without it, an airspeed
+    /// bias is absorbed into the frozen wind on the headings flown before the loss and comes
+    /// back as `δ (c − c̄)` on the others. false = the paper's (its frozen wind absorbs it).
+    /// docs/INS.md, "Airspeed bias from turns".
+    #[serde(default)]
+    pub airspeed_bias_from_turns: bool,
+    /// Smallest spread of the air-velocity direction over the window,
+    /// `mean |c|² − |c̄|²` (0 on one heading, 1 for headings spread evenly), for the estimate
+    /// to be used.
+    #[serde(default = "default_airspeed_bias_min_heading_spread")]
+    pub airspeed_bias_min_heading_spread: f64,
+}
+
+fn default_airspeed_bias_min_heading_spread() -> f64 {
+    0.2
 }
 
 impl Default for PositionFilterConfig {
@@ -269,6 +287,8 @@ impl Default for PositionFilterConfig {
             lpf_window_s: 120.0,
             turbulence_integral_scale_m: [533.4, 133.35, 133.35],
             gnss_bias_sigma_m: 8.0,
+            airspeed_bias_from_turns: false,
+            airspeed_bias_min_heading_spread: default_airspeed_bias_min_heading_spread(),
         }
     }
 }
@@ -503,6 +523,10 @@ impl InsConfig {
             positive("position.turbulence_integral_scale_m", l)?;
         }
         non_negative("position.gnss_bias_sigma_m", p.gnss_bias_sigma_m)?;
+        positive(
+            "position.airspeed_bias_min_heading_spread",
+            p.airspeed_bias_min_heading_spread,
+        )?;
         let g = &self.alignment;
         positive("alignment.ref_attitude_sigma_deg", g.ref_attitude_sigma_deg)?;
         for v in g.ref_error_sigma_deg {

@@ -395,6 +395,10 @@ impl Ins {
             gnss.velocity_cov() + v_air_cov,
             v_air,
         );
+        let est = match cfg.position.airspeed_bias_from_turns {
+            true => est.with_airspeed_bias(cfg.position.lpf_window_s),
+            false => est,
+        };
         let prev = PrevOutputs {
             pos: gnss.pos(),
             v_n: gnss.v_n(),

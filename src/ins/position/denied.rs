@@ -65,6 +65,9 @@ pub struct DeniedBudget {
     pub wind_attitude_sigma_mps: f64,
     /// Heading σ at the loss, rad.
     pub heading_sigma_rad: f64,
+    /// Airspeed correction estimated from the turns before the loss and applied to the dead
+    /// reckoning, m/s (`position.airspeed_bias_from_turns`; 0 when off or not observable).
+    pub airspeed_correction_mps: f64,
 }
 
 /// Horizontal DRMS of a NED covariance.
@@ -92,6 +95,8 @@ pub(crate) struct DeniedNav {
     h_var: f64,
     v_cov: Matrix3<f64>,
     budget: DeniedBudget,
+    /// Airspeed correction applied to the air velocity, m/s (0 = none).
+    airspeed_correction_mps: f64,
 }
 
 impl DeniedNav {
@@ -108,7 +113,18 @@ impl DeniedNav {
         gnss: &GnssFilter,
         est: &GnssPhaseEstimates,
     ) -> Self {
-        let (wind_n, wind_cov) = est.wind();
+        let (mut wind_n, wind_cov) = est.wind();
+        // The wind absorbed `c̄ δ` of an airspeed bias: take it out and correct the airspeed.
+        let airspeed_correction_mps = match cfg.airspeed_bias_from_turns {
+            true => match est.airspeed_bias(cfg.airspeed_bias_min_heading_spread) {
+                Some((delta, c_bar)) => {
+                    wind_n -= c_bar * delta;
+                    delta
+                }
+                None => 0.0,
+            },
+            false => 0.0,
+        };
         let (delta_p_pa, delta_p_var) = est.delta_p();
         let tas = air_x[air_data::TAS];
         let (_, j_air) = v_tas_b(tas, air_x[air_data::AOA], air_x[air_data::AOS]);
@@ -158,6 +174,7 @@ impl DeniedNav {
             wind_air_bias_sigma_mps: horizontal_drms(&p_w_bias),
             wind_attitude_sigma_mps: horizontal_drms(&p_w_att),
             heading_sigma_rad: att_cov_n[(2, 2)].max(0.0).sqrt(),
+            airspeed_correction_mps,
         };
         let mut p_dr = SMatrix::<f64, NDR, NDR>::zeros();
         p_dr.fixed_view_mut::<3, 3>(DR_P, DR_P)
@@ -192,6 +209,7 @@ impl DeniedNav {
             h_var: gnss.p[(P + 2, P + 2)],
             v_cov: gnss.velocity_cov(),
             budget,
+            airspeed_correction_mps,
         }
     }
 
@@ -241,7 +259,11 @@ impl DeniedNav {
         let (hp_m, delta_t_k, air_t_hp_cov) = (air.hp_m, air.delta_t_k, &air.t_hp_cov);
         let (dt_sub_s, n_sub, q_scale_sub) = (sub.dt_s, sub.n, sub.q_scale);
         let c_nb = q_nb.to_rotation_matrix().into_inner();
-        self.v_n = self.wind_n + v_air_n;
+        self.v_n = match self.airspeed_correction_mps {
+            0.0 => self.wind_n + v_air_n,
+            delta if tas_mps > 0.0 => self.wind_n + v_air_n * (1.0 + delta / tas_mps),
+            _ => self.wind_n + v_air_n,
+        };
         // Altitude: h(Hp, ΔT(T, Hp), Δp); ∂/∂T = ∂h/∂ΔT, ∂/∂Hp = ∂h/∂Hp − β_T ∂h/∂ΔT.
         let (h, d) = baro_altitude(hp_m, delta_t_k, self.delta_p_pa);
         let slope = if hp_m > atmosphere::HP_TROPOPAUSE_M {

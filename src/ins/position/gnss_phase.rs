@@ -28,7 +28,25 @@ pub(crate) struct GnssPhaseEstimates {
     gust_moments: WindowMean<GustMoments>,
     /// Turbulence integral scales along the body axes, m.
     gust_scale_m: [f64; 3],
+    /// Moments for the airspeed bias (`airspeed_bias_from_turns`; `None` when off).
+    airspeed_moments: Option<AirspeedMoments>,
 }
+
+/// Window means of the horizontal air-velocity direction `c = v_air,h / V` and of its products
+/// with itself and with the raw wind, from which the least-squares airspeed bias follows
+/// ([`GnssPhaseEstimates::airspeed_bias`]).
+#[derive(Debug, Clone)]
+struct AirspeedMoments {
+    /// The raw wind over the same samples (the wind's own mean also holds those below
+    /// `AIRSPEED_BIAS_MIN_TAS_MPS`).
+    r: WindowMean<Vector3<f64>>,
+    c: WindowMean<Vector3<f64>>,
+    c_dot_c: WindowMean<f64>,
+    c_dot_r: WindowMean<f64>,
+}
+
+/// No airspeed direction below this airspeed (on the ground), m/s.
+const AIRSPEED_BIAS_MIN_TAS_MPS: f64 = 5.0;
 
 /// Do not measure the turbulence before the wind low-pass has averaged this long, s (its
 /// deviation is then a small, poorly known fraction of the gust).
@@ -187,7 +205,36 @@ impl GnssPhaseEstimates {
             v_air_n: WindowMean::new(window_s, v_air_n),
             gust_moments: WindowMean::new(window_s, GustMoments::zeros()),
             gust_scale_m,
+            airspeed_moments: None,
         }
+    }
+
+    /// Also gather what the airspeed bias needs (`airspeed_bias_from_turns`).
+    pub fn with_airspeed_bias(mut self, window_s: f64) -> Self {
+        self.airspeed_moments = Some(AirspeedMoments {
+            r: WindowMean::new(window_s, Vector3::zeros()),
+            c: WindowMean::new(window_s, Vector3::zeros()),
+            c_dot_c: WindowMean::new(window_s, 0.0),
+            c_dot_r: WindowMean::new(window_s, 0.0),
+        });
+        self
+    }
+
+    /// Least-squares airspeed correction `δ` (m/s, to add to the airspeed) over the wind's
+    /// window, with the window's mean direction `c̄` (3-D, vertical zero): the raw wind is
+    /// `r = w + c δ`, so `δ = (⟨c·r⟩ − c̄·r̄) / (⟨|c|²⟩ − |c̄|²)`. `None` when not gathered or
+    /// when the headings flown spread less than `min_spread` (δ is then not observable).
+    pub fn airspeed_bias(&self, min_spread: f64) -> Option<(f64, Vector3<f64>)> {
+        let m = self.airspeed_moments.as_ref()?;
+        let c_bar = m.c.value();
+        let spread = m.c_dot_c.value() - c_bar.norm_squared();
+        // Also refuses a NaN spread.
+        if spread.is_nan() || spread < min_spread {
+            return None;
+        }
+        let r_bar = m.r.value();
+        let delta = (m.c_dot_r.value() - c_bar.dot(&r_bar)) / spread;
+        delta.is_finite().then_some((delta, c_bar))
     }
 
     /// Turbulence seen while GNSS is available: per body axis its variance σ², and the
@@ -258,6 +305,15 @@ impl GnssPhaseEstimates {
             self.v_air_n.step(v_air_n, dt_s);
             self.gust_moments
                 .step(GustMoments::of_sample(&c_nb, &wind_n), dt_s);
+            if let Some(m) = self.airspeed_moments.as_mut()
+                && tas_mps >= AIRSPEED_BIAS_MIN_TAS_MPS
+            {
+                let c = Vector3::new(v_air_n.x, v_air_n.y, 0.0) / tas_mps;
+                m.r.step(wind_n, dt_s);
+                m.c.step(c, dt_s);
+                m.c_dot_c.step(c.norm_squared(), dt_s);
+                m.c_dot_r.step(c.dot(&wind_n), dt_s);
+            }
         }
     }
 
