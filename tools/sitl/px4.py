@@ -546,6 +546,16 @@ class Harness:
             cfg.setdefault("ins", {}).setdefault("alignment", {}).update({
                 "ref_attitude_sigma_deg": SIH_REF_ATTITUDE_SIGMA_DEG,
                 "ref_error_sigma_deg": SIH_REF_ERROR_SIGMA_DEG})
+        for item in self.args.ins_set:
+            key, sep, value = item.partition("=")
+            section, dot, name = key.strip().partition(".")
+            if not sep or not dot or not section or not name:
+                raise SystemExit(f"--ins-set {item!r}: expected SECTION.KEY=VALUE")
+            try:
+                parsed = tomllib.loads(f"v = {value.strip()}")["v"]
+            except tomllib.TOMLDecodeError as e:
+                raise SystemExit(f"--ins-set {item!r}: {e}")
+            cfg.setdefault("ins", {}).setdefault(section, {})[name] = parsed
         path.write_text(to_toml(cfg))
 
     def start_daemon(self, logs: Path):
@@ -1258,7 +1268,9 @@ def flight_args(a) -> str:
             except ValueError:
                 v = Path(v).name
         flag = "--" + k.replace("_", "-")
-        if v is True:
+        if isinstance(v, list):
+            words.extend(f"{flag} {item}" for item in v)
+        elif v is True:
             words.append(flag)
         else:
             words.append(f"{flag} {v}")
@@ -1297,6 +1309,11 @@ def main(argv=None):
     ap.add_argument("--q-e-gyr", type=float, default=SIH_Q_E_GYR_RAD2PS2,
                     help="daemon [ins.attitude] q_e_gyr_rad2ps2 (default 3e-14: SIH's gyros do "
                          "not drift; 0 keeps the config's)")
+    ap.add_argument("--ins-set", action="append", default=[], metavar="SECTION.KEY=VALUE",
+                    help="one more daemon INS setting (repeatable), a key of config/ins.toml "
+                         "under its section and a TOML value, e.g. "
+                         "attitude.r_accel_turn_rel=0.2; applied after the presets above, "
+                         "recorded in the flight's ianav.toml and summary")
     ap.add_argument("--sih-imu", action=argparse.BooleanOptionalAction, default=True,
                     help="configure the daemon's INS for SIH's sensor noise: IMU (measured), "
                          "the body-rate Q̃ matched to the gyro R, magnetometer (PX4's "
