@@ -11,7 +11,7 @@
 //!   whose stem is an integer is shown at that many µs after the first such file; otherwise
 //!   frames are paced at `camera.rate_hz`. Frames are stamped with the daemon's clock when
 //!   emitted (no autopilot clock is involved). The directory is read once.
-//! - `v4l2` / `gstreamer`: OpenCV `VideoCapture` on its own thread ([`super::camera_cv`]),
+//! - `v4l2` / `gstreamer`: OpenCV `VideoCapture` on its own thread (`camera_cv.rs`),
 //!   with the `opencv` feature (without it the configuration check refuses them).
 
 use std::path::{Path, PathBuf};

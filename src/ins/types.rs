@@ -228,7 +228,7 @@ pub struct SensorCounters {
     pub rejected_time: u64,
 }
 
-/// Counters of the INS, see [`Ins::stats`].
+/// Counters of the INS, see [`super::Ins::stats`].
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Serialize, Deserialize)]
 pub struct InsStats {
     /// IMU samples.
@@ -243,7 +243,7 @@ pub struct InsStats {
     pub imu_before_init: u64,
     /// IMU steps longer than `imu_gap_s` (propagated in sub-steps and flagged).
     pub imu_gaps: u64,
-    /// IMU samples refused because they came more than [`MAX_PROPAGATED_INTERVAL_S`] after
+    /// IMU samples refused because they came more than [`super::MAX_PROPAGATED_INTERVAL_S`] after
     /// the last step (also counted in `imu.rejected_time`).
     pub imu_interval_too_long: u64,
     /// GNSS fixes fused.

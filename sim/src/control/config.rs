@@ -136,19 +136,19 @@ pub struct TargetLimits {
 pub struct ControlConfig {
     /// Control period, s (the paper's 50 Hz: 0.02 s).
     pub period_s: f64,
-    /// Airspeed [m/s] → throttle [0–1].
+    /// Airspeed \[m/s\] → throttle \[0–1\].
     pub throttle: PidConfig,
-    /// Pitch θ [deg] → elevator [deg].
+    /// Pitch θ \[deg\] → elevator \[deg\].
     pub elevator: PidConfig,
-    /// Bank ξ [deg] → ailerons [deg].
+    /// Bank ξ \[deg\] → ailerons \[deg\].
     pub aileron: PidConfig,
-    /// Sideslip β [deg] → rudder [deg].
+    /// Sideslip β \[deg\] → rudder \[deg\].
     pub rudder: PidConfig,
-    /// Pressure altitude Hp [m] → pitch target [deg]; its rate is the climb rate −v_D.
+    /// Pressure altitude Hp \[m\] → pitch target \[deg\]; its rate is the climb rate −v_D.
     pub altitude: PidConfig,
-    /// Air path angle γ_TAS [deg] → pitch target [deg].
+    /// Air path angle γ_TAS \[deg\] → pitch target \[deg\].
     pub path_angle: PidConfig,
-    /// Ground-track bearing χ [deg] → bank target [deg].
+    /// Ground-track bearing χ \[deg\] → bank target \[deg\].
     pub bearing: PidConfig,
     /// Yaw damper on the rudder.
     pub yaw_damper: YawDamperConfig,

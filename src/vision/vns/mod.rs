@@ -13,9 +13,9 @@
 //! 3. reprojection of the points of the closest overlapping keyframes and of the candidates
 //!    into the grid, one direct match per cell (`reprojection.rs`; [`crate::vision::matcher`]);
 //! 4. pose optimisation ([`crate::vision::pose_opt`]), outliers dropped;
-//! 5. tracking-quality check. Steps 3–5 do not touch the map ([`Vns::attempt`]);
+//! 5. tracking-quality check. Steps 3–5 do not touch the map (`Vns::attempt`);
 //! 6. on a failure, steps 3–5 again from second starts (sparse alignment can settle a texture
-//!    period away; [`Vns::second_chance`]), and only then a tracking loss, which starts
+//!    period away; `Vns::second_chance`), and only then a tracking loss, which starts
 //!    relocalisation against the closest keyframe. What follows (`Vns::commit`) applies to
 //!    the start that tracked:
 //! 7. the match verdicts of step 3 applied to the map points (`reprojection.rs`);

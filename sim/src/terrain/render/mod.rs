@@ -37,19 +37,19 @@
 //! - Speed without changing a bit: the hot loops are split into phases of independent,
 //!   branch-free iterations (the solves of rows predicted from above, midpoints, levels of
 //!   detail, texel coordinates, blends) that the compiler vectorises, and the main pass,
-//!   geometry included, has an AVX2 build chosen at run time ([`pass::MainPass`]). The Monte
+//!   geometry included, has an AVX2 build chosen at run time (`pass::MainPass`). The Monte
 //!   Carlo run files, which hold the visual systems' errors on these images, stay reproducible
 //!   (docs/PERFORMANCE.md).
 
 //!
 //! The stages, one file each:
-//! - [`rays`]: the local map and each pixel's ray;
-//! - [`mod@intersect`]: one ray against the height field (fast path, Newton, march);
-//! - [`ground`]: the ground points of a block of rows (solved pixels and midpoints);
-//! - [`lod`]: levels of detail;
-//! - [`atlas`]: the albedo atlases of a frame and their sampling; [`shading`]: grey levels;
-//! - [`pass`]: the main pass over a block and its baseline and AVX2 builds;
-//! - [`fixed`]: the fixed-point coordinates the look-ups share.
+//! - `rays.rs`: the local map and each pixel's ray;
+//! - `intersect.rs`: one ray against the height field (fast path, Newton, march);
+//! - `ground.rs`: the ground points of a block of rows (solved pixels and midpoints);
+//! - `lod.rs`: levels of detail;
+//! - `atlas.rs`: the albedo atlases of a frame and their sampling; `shading.rs`: grey levels;
+//! - `pass.rs`: the main pass over a block and its baseline and AVX2 builds;
+//! - `fixed.rs`: the fixed-point coordinates the look-ups share.
 //!
 //! This file sets up a frame: the pose checks, the height tiles under the view, the coarse
 //! pass that finds the mip levels in use and the albedo tiles they need, then the main pass
@@ -132,7 +132,7 @@ pub struct RenderOptions {
     /// Grey level of rays that meet no terrain.
     pub sky_grey: u8,
     /// Intersect every pixel's ray exactly (reference renders, 3× the height look-ups) instead of
-    /// every other row and column with midpoints in between (see [`ground::BlockGeometry`]).
+    /// every other row and column with midpoints in between (see `ground::BlockGeometry`).
     pub exact_geometry: bool,
 }
 
