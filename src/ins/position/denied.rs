@@ -259,11 +259,12 @@ impl DeniedNav {
         let (hp_m, delta_t_k, air_t_hp_cov) = (air.hp_m, air.delta_t_k, &air.t_hp_cov);
         let (dt_sub_s, n_sub, q_scale_sub) = (sub.dt_s, sub.n, sub.q_scale);
         let c_nb = q_nb.to_rotation_matrix().into_inner();
-        self.v_n = match self.airspeed_correction_mps {
-            0.0 => self.wind_n + v_air_n,
-            delta if tas_mps > 0.0 => self.wind_n + v_air_n * (1.0 + delta / tas_mps),
-            _ => self.wind_n + v_air_n,
+        // The airspeed correction as a scale of the air velocity (exactly 1 without one).
+        let scale = match tas_mps > 0.0 {
+            true => 1.0 + self.airspeed_correction_mps / tas_mps,
+            false => 1.0,
         };
+        self.v_n = self.wind_n + v_air_n * scale;
         // Altitude: h(Hp, ΔT(T, Hp), Δp); ∂/∂T = ∂h/∂ΔT, ∂/∂Hp = ∂h/∂Hp − β_T ∂h/∂ΔT.
         let (h, d) = baro_altitude(hp_m, delta_t_k, self.delta_p_pa);
         let slope = if hp_m > atmosphere::HP_TROPOPAUSE_M {
