@@ -710,6 +710,29 @@ fn a_batch_in_progress_tells_its_status_and_the_report_names_what_is_missing() {
     let left = b.time_left().unwrap();
     assert!((left.seconds - 30.0).abs() < 1e-6, "{left:?}");
     assert!((left.per_run_s - 17.0).abs() < 1e-6, "{left:?}");
+    // A fresh checkout gives every file one time: no rate, no estimate (not "0 s").
+    let checkout = std::time::SystemTime::now();
+    for f in std::fs::read_dir(&out)
+        .unwrap()
+        .chain(std::fs::read_dir(out.join("runs")).unwrap())
+    {
+        let path = f.unwrap().path();
+        if path.is_file() {
+            touch_at(&path, checkout, 0);
+        }
+    }
+    let fresh = status::status(std::slice::from_ref(&out)).unwrap();
+    assert_eq!(fresh.batches[0].time_left(), None, "{fresh:?}");
+    for (f, secs) in [
+        ("mc_shard_1of3.plan.toml", 0),
+        ("runs/run_0001.csv", 4),
+        ("runs/run_0004.csv", 8),
+        ("mc_shard_1of3.toml", 9),
+        ("mc_shard_2of3.plan.toml", 20),
+        ("runs/run_0002.csv", 50),
+    ] {
+        touch_at(&out.join(f), t0, secs);
+    }
     let text = st.render(std::time::SystemTime::now());
     for expected in [
         "shards with runs to fly: 2,3",

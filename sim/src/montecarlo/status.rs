@@ -97,6 +97,9 @@ struct BatchKey {
     duration_ms: i64,
 }
 
+/// The least time between a shard's start and its latest run that measures a rate, s.
+const MIN_MEASURED_S: f64 = 1.0;
+
 /// A plan or manifest found.
 struct Found {
     key: BatchKey,
@@ -142,11 +145,13 @@ pub struct ShardStatus {
 
 impl ShardStatus {
     /// Mean wall time between runs since the shard's start, s (its rate: with several jobs, a
-    /// fraction of one run's flight).
+    /// fraction of one run's flight). `None` below a second in all: a fresh copy or checkout
+    /// gives the plan and its runs one time, which measures no rate.
     fn per_run_s(&self) -> Option<f64> {
         let (start, last) = (self.started?, self.last_run?);
         let elapsed = last.duration_since(start).ok()?.as_secs_f64();
-        (self.flown_since_start > 0).then(|| elapsed / self.flown_since_start as f64)
+        (self.flown_since_start > 0 && elapsed >= MIN_MEASURED_S)
+            .then(|| elapsed / self.flown_since_start as f64)
     }
 }
 
@@ -195,7 +200,7 @@ impl BatchStatus {
 
     /// The time left if every shard with runs to fly flies from now on, in parallel, at its
     /// own measured rate (or the mean rate of the shards measured, for one not yet measured).
-    /// `None` when no shard has written a run since it started.
+    /// `None` when no shard has measured its pace (a run a second or more after its start).
     pub fn time_left(&self) -> Option<TimeLeft> {
         let rates: Vec<f64> = self
             .shards
@@ -654,7 +659,7 @@ impl Status {
                     None => {
                         let _ = writeln!(
                             t,
-                            "time left: unknown (no shard has written a run since it started)"
+                            "time left: unknown (no shard has written a run a second or more after its start)"
                         );
                     }
                 }
