@@ -509,7 +509,7 @@ impl Pipeline {
                 default_sigma: (3.0, 5.0, 0.5),
                 aoa_ssa_is_vanes: true,
                 gnss_lag_us: 0,
-                mag_from_scaled_imu: false,
+                mag_from: ianav::io::mavlink_in::MagFrom::ImuMessage,
             }),
             rx_us: 20_000_000,
             held: 0,

@@ -131,8 +131,11 @@ pub enum AoaSsaUse {
 #[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
 #[serde(rename_all = "snake_case")]
 pub enum MagnetometerSource {
-    /// The IMU message's magnetometer fields (default): HIGHRES_IMU on PX4, SCALED_IMU on
-    /// ArduPilot.
+    /// Follow the autopilot found (default): `scaled_imu` beside PX4 and any other autopilot
+    /// that sends HIGHRES_IMU (falling back to HIGHRES_IMU's field while no SCALED_IMU comes),
+    /// `imu` beside ArduPilot, whose IMU message is SCALED_IMU already.
+    Auto,
+    /// The IMU message's magnetometer fields: HIGHRES_IMU on PX4, SCALED_IMU on ArduPilot.
     Imu,
     /// SCALED_IMU, requested besides the IMU message: the sensor's field. PX4's HIGHRES_IMU
     /// subtracts EKF2's current magnetometer-bias estimate, which wanders by hundreds of nT
@@ -252,7 +255,21 @@ pub struct InputConfig {
 }
 
 fn default_magnetometer() -> MagnetometerSource {
-    MagnetometerSource::Imu
+    MagnetometerSource::Auto
+}
+
+impl MagnetometerSource {
+    /// What the decoder does beside an autopilot of this kind (`Auto` before it is known).
+    pub fn decoder_choice(self, kind: AutopilotKind) -> crate::io::mavlink_in::MagFrom {
+        use crate::io::mavlink_in::MagFrom;
+        match (self, kind) {
+            (Self::Imu, _) | (Self::Auto, AutopilotKind::Ardupilot | AutopilotKind::Auto) => {
+                MagFrom::ImuMessage
+            }
+            (Self::ScaledImu, _) => MagFrom::ScaledImu,
+            (Self::Auto, AutopilotKind::Px4) => MagFrom::ScaledImuWhileItComes,
+        }
+    }
 }
 
 fn default_start_airspeed_mps() -> f64 {
@@ -788,8 +805,23 @@ fn decode_key(s: &str) -> Option<[u8; 32]> {
 }
 
 /// Parse a `tracing` filter (`logging.level` or `RUST_LOG`) strictly, as `ianav run` does:
-/// an unknown level or a malformed directive is an error, not silently dropped.
+/// an unknown level or a malformed directive is an error, not silently dropped. A directive
+/// without `=` must be a level: `tracing` would read `inf` as a module named "inf" and log
+/// nothing of ours, so a typo of a level is refused; a whole module is `module=trace`.
 pub fn parse_log_filter(s: &str) -> Result<tracing_subscriber::EnvFilter, String> {
+    for directive in s.split(',').map(str::trim) {
+        let bare = !directive.is_empty() && !directive.contains(['=', '[']);
+        if bare
+            && directive
+                .parse::<tracing::level_filters::LevelFilter>()
+                .is_err()
+        {
+            return Err(format!(
+                "{directive:?} is not a level (trace, debug, info, warn, error, off); \
+                 to set a module's level write module=level"
+            ));
+        }
+    }
     // The parser's error repeats its cause in `source()`: keep the message only.
     tracing_subscriber::EnvFilter::builder()
         .parse(s)
@@ -870,6 +902,21 @@ mod tests {
             "{MINIMAL}[logging]\nlevel = \"info,ianav=loud\"\n"
         ));
         assert!(e.starts_with("logging.level = \"info,ianav=loud\":"), "{e}");
+        // A typo of a level would be a module named "inf" to `tracing`: refused.
+        for typo in ["inf", "warn,ianav::vision=debug,degub"] {
+            let e = error(&format!("{MINIMAL}[logging]\nlevel = \"{typo}\"\n"));
+            assert!(e.contains("is not a level"), "{typo}: {e}");
+        }
+        for good in [
+            "INFO",
+            "off",
+            "ianav=trace",
+            "warn,ianav::vision=debug",
+            "ianav[nav]=debug",
+        ] {
+            let filter = format!("{MINIMAL}[logging]\nlevel = \"{good}\"\n");
+            assert!(parse(&filter).is_ok(), "{good}");
+        }
         assert!(
             parse(&format!(
                 "{MINIMAL}[logging]\nlevel = \"warn,ianav=debug\"\n"

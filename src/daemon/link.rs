@@ -332,7 +332,7 @@ pub(super) async fn reader(
             default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
             aoa_ssa_is_vanes: cfg.input.aoa_ssa == AoaSsaUse::Vanes,
             gnss_lag_us: (cfg.input.gnss_lag_s * 1e6).round() as u64,
-            mag_from_scaled_imu: cfg.input.magnetometer == MagnetometerSource::ScaledImu,
+            mag_from: cfg.input.magnetometer.decoder_choice(cfg.mavlink.autopilot),
         }),
         gate: MonotonicGate::default(),
         seq: SequenceTracker::default(),
@@ -472,6 +472,8 @@ async fn handle_raw(
         });
         st.dec
             .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
+        st.dec
+            .set_mag_from(cfg.input.magnetometer.decoder_choice(kind));
     }
     if sender != Sender::Autopilot {
         // TIMESYNC requests are answered from anyone; responses count only from the autopilot.
@@ -680,7 +682,7 @@ pub fn requested_streams(cfg: &DaemonConfig, kind: AutopilotKind) -> Vec<(u32, f
     if i.aoa_ssa == AoaSsaUse::Vanes {
         v.push((apm::AOA_SSA_DATA::ID, i.air_rate_hz));
     }
-    if i.magnetometer == MagnetometerSource::ScaledImu && kind != AutopilotKind::Ardupilot {
+    if i.magnetometer != MagnetometerSource::Imu && kind != AutopilotKind::Ardupilot {
         v.push((apm::SCALED_IMU_DATA::ID, i.air_rate_hz));
     }
     v.extend([
@@ -924,7 +926,7 @@ mod tests {
     }
 
     #[test]
-    fn scaled_imu_is_requested_beside_px4_only_for_the_magnetometer_setting() {
+    fn scaled_imu_is_requested_beside_px4_unless_the_imu_message_is_chosen() {
         let cfg = |mag: &str| {
             DaemonConfig::from_toml_str(
                 &format!(
@@ -939,9 +941,12 @@ mod tests {
             requested_streams(c, k).iter().map(|(id, _)| *id).collect()
         };
         let scaled = apm::SCALED_IMU_DATA::ID;
-        let px4_default = ids(&cfg("imu"), AutopilotKind::Px4);
-        assert!(px4_default.contains(&apm::HIGHRES_IMU_DATA::ID));
-        assert!(!px4_default.contains(&scaled));
+        let px4_imu = ids(&cfg("imu"), AutopilotKind::Px4);
+        assert!(px4_imu.contains(&apm::HIGHRES_IMU_DATA::ID));
+        assert!(!px4_imu.contains(&scaled));
+        // The default follows the autopilot: the raw field beside PX4.
+        let px4_auto = ids(&cfg("auto"), AutopilotKind::Px4);
+        assert!(px4_auto.contains(&apm::HIGHRES_IMU_DATA::ID) && px4_auto.contains(&scaled));
         let px4_raw = ids(&cfg("scaled_imu"), AutopilotKind::Px4);
         assert!(px4_raw.contains(&apm::HIGHRES_IMU_DATA::ID) && px4_raw.contains(&scaled));
         // ArduPilot's IMU message is SCALED_IMU already: requested once.

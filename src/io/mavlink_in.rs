@@ -228,11 +228,26 @@ pub struct DecoderConfig {
     pub aoa_ssa_is_vanes: bool,
     /// Receiver lag: a fix is dated this long before its stamp, µs.
     pub gnss_lag_us: u64,
-    /// Take the magnetometer from SCALED_IMU only, whatever message carries the IMU: PX4's
-    /// HIGHRES_IMU subtracts its EKF's current magnetometer-bias estimate, which wanders by
-    /// hundreds of nT (degrees of heading); SCALED_IMU carries the sensor's field.
-    pub mag_from_scaled_imu: bool,
+    /// Which message the magnetometer is taken from.
+    pub mag_from: MagFrom,
 }
+
+/// Which message the magnetometer is taken from. PX4's HIGHRES_IMU subtracts its EKF's
+/// current magnetometer-bias estimate, which wanders by hundreds of nT (degrees of heading);
+/// SCALED_IMU carries the sensor's field.
+#[derive(Debug, Clone, Copy, PartialEq, Eq)]
+pub enum MagFrom {
+    /// The IMU message's fields, whichever carries the IMU.
+    ImuMessage,
+    /// SCALED_IMU only.
+    ScaledImu,
+    /// SCALED_IMU while it comes (one within [`SCALED_MAG_HOLD_US`]), else the IMU message's:
+    /// an autopilot that never sends SCALED_IMU still gives a field.
+    ScaledImuWhileItComes,
+}
+
+/// How long a SCALED_IMU field keeps HIGHRES_IMU's out in [`MagFrom::ScaledImuWhileItComes`], µs.
+pub const SCALED_MAG_HOLD_US: u64 = 1_000_000;
 
 /// Stateful converter (keeps the latest airspeed, vanes, vertical speed and attitude).
 #[derive(Debug, Clone)]
@@ -257,6 +272,8 @@ pub struct InputDecoder {
     last_fix_vd_known: bool,
     /// Last time of each IMU message type: HIGHRES_IMU, SCALED_IMU, RAW_IMU, µs.
     imu_seen_us: [Option<u64>; 3],
+    /// Last SCALED_IMU whose field was taken, µs.
+    scaled_mag_us: Option<u64>,
 }
 
 /// Events decoded from one message (at most IMU + magnetometer + air data).
@@ -324,6 +341,7 @@ impl InputDecoder {
             undulation_m: None,
             last_fix_vd_known: false,
             imu_seen_us: [None; 3],
+            scaled_mag_us: None,
         }
     }
 
@@ -340,6 +358,11 @@ impl InputDecoder {
     /// Whether RAW_IMU is in scaled units (set when the autopilot turns out to be ArduPilot).
     pub fn set_raw_imu_is_scaled(&mut self, scaled: bool) {
         self.cfg.raw_imu_is_scaled = scaled;
+    }
+
+    /// Which message the magnetometer is taken from (set when the autopilot is known).
+    pub fn set_mag_from(&mut self, mag_from: MagFrom) {
+        self.cfg.mag_from = mag_from;
     }
 
     /// The latest autopilot attitude.
@@ -367,6 +390,7 @@ impl InputDecoder {
         self.vz.clear();
         self.attitude = None;
         self.imu_seen_us = [None; 3];
+        self.scaled_mag_us = None;
     }
 
     /// Note an IMU message of `priority` (0 = best) at `t_us`; `false` if a better one is
@@ -435,7 +459,15 @@ impl InputDecoder {
                         accel_mps2: accel,
                     }));
                 }
-                if has(0x01c0) && self.cfg.mag_from_scaled_imu {
+                let scaled_mag_comes = self
+                    .scaled_mag_us
+                    .is_some_and(|t| t.abs_diff(t_us) <= SCALED_MAG_HOLD_US);
+                let skip_mag = match self.cfg.mag_from {
+                    MagFrom::ImuMessage => false,
+                    MagFrom::ScaledImu => true,
+                    MagFrom::ScaledImuWhileItComes => scaled_mag_comes,
+                };
+                if has(0x01c0) && skip_mag {
                     self.counters.highres_mag_ignored += 1;
                 } else if has(0x01c0) {
                     let mag = Vector3::new(m.xmag, m.ymag, m.zmag).cast::<f64>() * NT_PER_GAUSS;
@@ -460,8 +492,11 @@ impl InputDecoder {
             M::SCALED_IMU(m) => {
                 let t_us = map(ApTime::BootMs(m.time_boot_ms)).ok_or(Reject::Time)?;
                 let imu = self.imu_preferred(1, t_us);
-                if !imu && !self.cfg.mag_from_scaled_imu {
+                if !imu && self.cfg.mag_from == MagFrom::ImuMessage {
                     return Ok(());
+                }
+                if self.cfg.mag_from != MagFrom::ImuMessage {
+                    self.scaled_mag_us = Some(t_us);
                 }
                 self.scaled_imu(
                     t_us,
@@ -810,7 +845,7 @@ mod tests {
             default_sigma: (3.0, 5.0, 0.5),
             aoa_ssa_is_vanes: true,
             gnss_lag_us: 0,
-            mag_from_scaled_imu: false,
+            mag_from: MagFrom::ImuMessage,
         })
     }
 
@@ -957,7 +992,7 @@ mod tests {
     fn a_gnss_fix_is_dated_the_receiver_lag_before_its_stamp_and_extreme_heights_are_refused() {
         let mut d = InputDecoder::new(DecoderConfig {
             gnss_lag_us: 120_000,
-            mag_from_scaled_imu: false,
+            mag_from: MagFrom::ImuMessage,
             ..*decoder().config()
         });
         let mut m = apm::GPS_RAW_INT_DATA {
@@ -1130,7 +1165,7 @@ mod tests {
     #[test]
     fn magnetometer_from_scaled_imu_beside_a_highres_imu() {
         let mut d = InputDecoder::new(DecoderConfig {
-            mag_from_scaled_imu: true,
+            mag_from: MagFrom::ScaledImu,
             ..*decoder().config()
         });
         // HIGHRES_IMU with every field: IMU and pressure, not its (bias-corrected) field.
@@ -1156,6 +1191,48 @@ mod tests {
         assert_eq!(mag.t_us, 1_010_000);
         assert!((mag.mag_b_nt - Vector3::new(20_000.0, 0.0, 45_000.0)).norm() < 1e-9);
         assert_eq!(d.counters().imu_lower_priority, 1);
+    }
+
+    #[test]
+    fn magnetometer_from_scaled_imu_while_it_comes() {
+        let mut d = InputDecoder::new(DecoderConfig {
+            mag_from: MagFrom::ScaledImuWhileItComes,
+            ..*decoder().config()
+        });
+        // x in nT, rounded: HIGHRES_IMU carries f32 gauss.
+        let mags = |ev: &Events| -> Vec<f64> {
+            ev.iter()
+                .filter_map(|e| match e {
+                    SensorEvent::Mag(m) => Some(m.mag_b_nt.x.round()),
+                    _ => None,
+                })
+                .collect()
+        };
+        let at = |t_s: f64| apm::HIGHRES_IMU_DATA {
+            time_usec: (t_s * 1e6) as u64,
+            ..highres(0x1fff)
+        };
+        let scaled = |t_ms: u32| {
+            apm::MavMessage::SCALED_IMU(apm::SCALED_IMU_DATA {
+                time_boot_ms: t_ms,
+                xmag: 300,
+                ..Default::default()
+            })
+        };
+        // No SCALED_IMU yet: HIGHRES_IMU's field (0.2 gauss).
+        let ev = d.decode(&apm::MavMessage::HIGHRES_IMU(at(1.0)), &mut map);
+        assert_eq!(mags(&ev), [20_000.0]);
+        // SCALED_IMU comes: its field, and HIGHRES_IMU's is left out within the hold.
+        assert_eq!(mags(&d.decode(&scaled(1_010), &mut map)), [30_000.0]);
+        let ev = d.decode(&apm::MavMessage::HIGHRES_IMU(at(1.02)), &mut map);
+        assert!(mags(&ev).is_empty() && ev.iter().any(|e| matches!(e, SensorEvent::Imu(_))));
+        assert_eq!(d.counters().highres_mag_ignored, 1);
+        // SCALED_IMU stops: past the hold, HIGHRES_IMU's field again.
+        let ev = d.decode(&apm::MavMessage::HIGHRES_IMU(at(2.02)), &mut map);
+        assert_eq!(mags(&ev), [20_000.0]);
+        // A decoder set to the IMU message ignores SCALED_IMU beside HIGHRES_IMU.
+        d.set_mag_from(MagFrom::ImuMessage);
+        assert!(mags(&d.decode(&scaled(2_030), &mut map)).is_empty());
     }
 
     #[test]
