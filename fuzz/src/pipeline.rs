@@ -336,8 +336,7 @@ impl Pipeline {
             default_sigma: (p.gnss_sigma_hor_m, p.gnss_sigma_ver_m, p.gnss_sigma_vel_mps),
             aoa_ssa_is_vanes: cfg.input.aoa_ssa == AoaSsaUse::Vanes,
             gnss_lag_us: (cfg.input.gnss_lag_s * 1e6).round() as u64,
-            mag_from_scaled_imu: cfg.input.magnetometer
-                == ianav::daemon::config::MagnetometerSource::ScaledImu,
+            mag_from: cfg.input.magnetometer.decoder_choice(cfg.mavlink.autopilot),
         });
         let nav = Navigator::new(&ianav::daemon::nav_config(&cfg, MAG_DECIMAL_YEAR))?;
         Ok(Self {
@@ -460,6 +459,8 @@ impl Pipeline {
                 self.autopilot = Some((sys, comp, kind));
                 self.dec
                     .set_raw_imu_is_scaled(kind == AutopilotKind::Ardupilot);
+                self.dec
+                    .set_mag_from(self.cfg.input.magnetometer.decoder_choice(kind));
             }
             self.stats.heartbeats += 1;
         }
