@@ -54,7 +54,7 @@ use mavlink::dialects::ardupilotmega as apm;
 use nav_thread::{FrameQueue, NavInput, Recorder};
 use shared::Context;
 use supervisor::{
-    CAMERA, Ending, INTERVALS, LAST_WORDS, MONITOR, NAV_ID, NavThread, READER, Supervisor,
+    CAMERA, Ending, INTERVALS, LAST_WORDS, MONITOR, NAV_ID, NavThread, OwnStop, READER, Supervisor,
     TIMESYNC, WRITER,
 };
 
@@ -247,17 +247,20 @@ fn spawn_workers(
     let intervals = link::interval_requests(c.cfg, c.outbox, c.shared, c.stop);
     sup.spawn(INTERVALS, intervals);
     sup.spawn(MONITOR, monitor::monitor(ctx.clone(), latest));
+    // Each run of the camera stops on its own signal, so that its capture thread ends with it.
     let c = ctx.clone();
     sup.spawn_restartable(CAMERA, move || {
+        let (own_stop, own) = OwnStop::new(&c.stop);
         let wake = cam_wake.clone();
-        camera::run(
+        let camera = camera::run(
             c.cfg.clone(),
             c.clock,
             frames.clone(),
             wake,
             c.shared.clone(),
-            c.stop.clone(),
-        )
+            own,
+        );
+        own_stop.around(camera)
     });
 }
 

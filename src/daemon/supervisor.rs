@@ -8,7 +8,7 @@ use std::future::Future;
 use std::pin::Pin;
 use std::time::Duration;
 
-use tokio::sync::oneshot;
+use tokio::sync::{oneshot, watch};
 
 use super::DaemonError;
 use super::shared::Context;
@@ -280,6 +280,44 @@ impl Supervisor {
     }
 }
 
+/// A stop signal of a worker's own, for one run of it: raised by the daemon's stop signal and
+/// when this run ends or is dropped (its panic, an injected fault, the final abort). A thread the
+/// worker started (the OpenCV capture of `camera_cv`, which a dropped task no longer joins)
+/// then ends with it instead of capturing on beside the worker's restarted successor.
+pub(super) struct OwnStop {
+    raise: watch::Sender<bool>,
+    daemon: watch::Receiver<bool>,
+}
+
+impl OwnStop {
+    /// A signal following the daemon's `stop`, and the receiver to give the worker.
+    pub(super) fn new(stop: &watch::Receiver<bool>) -> (Self, watch::Receiver<bool>) {
+        let (raise, own) = watch::channel(*stop.borrow());
+        let daemon = stop.clone();
+        (Self { raise, daemon }, own)
+    }
+
+    /// Run `worker` (given this signal's receiver), passing the daemon's stop on to it.
+    pub(super) async fn around(mut self, worker: impl Future<Output = ()>) {
+        let follow = async {
+            // Err: every sender is gone, which also means stop.
+            let _ = self.daemon.wait_for(|s| *s).await;
+            self.raise.send_replace(true);
+            std::future::pending::<()>().await;
+        };
+        tokio::select! {
+            () = worker => {}
+            () = follow => {}
+        }
+    }
+}
+
+impl Drop for OwnStop {
+    fn drop(&mut self) {
+        self.raise.send_replace(true);
+    }
+}
+
 /// How supervision ended.
 pub(super) enum Ending {
     /// `Handle::stop` (SIGINT / SIGTERM).
@@ -343,5 +381,50 @@ impl NavThread {
             (Ok(()), Ending::Failed(e)) => Err(e),
             (Ok(()), Ending::Stopped) => Ok(()),
         }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// A thread started by a worker, polling its stop signal like the OpenCV capture does.
+    fn polling_thread(stop: watch::Receiver<bool>) -> std::sync::mpsc::Receiver<()> {
+        let (done_tx, done_rx) = std::sync::mpsc::channel();
+        std::thread::spawn(move || {
+            while !*stop.borrow() {
+                std::thread::sleep(Duration::from_millis(5));
+            }
+            let _ = done_tx.send(());
+        });
+        done_rx
+    }
+
+    #[tokio::test]
+    async fn a_thread_of_a_worker_ends_with_the_worker_or_the_daemon() {
+        let wait = Duration::from_secs(2);
+        // The worker's task dropped (a panic, an injected fault, the final abort).
+        let (_daemon_tx, stop) = watch::channel(false);
+        let (own_stop, own) = OwnStop::new(&stop);
+        let done = polling_thread(own);
+        let task = tokio::spawn(own_stop.around(std::future::pending()));
+        tokio::time::sleep(Duration::from_millis(20)).await;
+        assert!(done.try_recv().is_err(), "ended before its worker");
+        task.abort();
+        assert!(task.await.unwrap_err().is_cancelled());
+        done.recv_timeout(wait).unwrap();
+        // The daemon stopping: the signal is passed on and the worker ends by itself.
+        let (daemon_tx, stop) = watch::channel(false);
+        let (own_stop, mut own) = OwnStop::new(&stop);
+        let done = polling_thread(own.clone());
+        let task = tokio::spawn(own_stop.around(async move {
+            let _ = own.wait_for(|s| *s).await;
+            tokio::task::spawn_blocking(move || done.recv_timeout(Duration::from_secs(2)))
+                .await
+                .unwrap()
+                .unwrap();
+        }));
+        daemon_tx.send_replace(true);
+        tokio::time::timeout(wait, task).await.unwrap().unwrap();
     }
 }
