@@ -140,6 +140,15 @@ pub struct Frame {
     pub pixels: std::sync::Arc<[u8]>,
 }
 
+/// Where a deferred frame's visual navigation was handed back to the navigator
+/// (`nav::NavConfig::vision_deferred`): recorded with the events so that a replay applies
+/// the result at the same point of the stream.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Serialize, Deserialize)]
+pub struct VisionApplied {
+    /// The frame's exposure time, microseconds.
+    pub t_us: u64,
+}
+
 /// One timestamped input of the navigation core.
 #[derive(Debug, Clone, PartialEq)]
 pub enum SensorEvent {
@@ -159,6 +168,8 @@ pub enum SensorEvent {
     Alignment(Box<Alignment>),
     /// Height over the terrain.
     HeightAboveTerrain(HeightAboveTerrain),
+    /// A deferred frame's visual navigation handed back (its time is the frame's).
+    VisionApplied(VisionApplied),
 }
 
 impl SensorEvent {
@@ -173,6 +184,7 @@ impl SensorEvent {
             SensorEvent::Frame(s) => s.t_us,
             SensorEvent::Alignment(s) => s.t_us,
             SensorEvent::HeightAboveTerrain(s) => s.t_us,
+            SensorEvent::VisionApplied(s) => s.t_us,
         }
     }
 }

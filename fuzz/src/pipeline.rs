@@ -525,7 +525,9 @@ impl Pipeline {
             SensorEvent::Gnss(_) => Kind::Gnss,
             SensorEvent::Frame(_) => Kind::Frame,
             SensorEvent::RefAttitude(_) => Kind::RefAttitude,
-            SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_) => return Ok(()),
+            SensorEvent::Alignment(_)
+            | SensorEvent::HeightAboveTerrain(_)
+            | SensorEvent::VisionApplied(_) => return Ok(()),
         };
         if !self.gate.accept(kind, ev.t_us()) {
             self.stats.gated += 1;
@@ -577,11 +579,14 @@ impl Pipeline {
                 SensorEvent::RefAttitude(_) => l.ref_attitude += 1,
                 SensorEvent::Frame(_)
                 | SensorEvent::Alignment(_)
-                | SensorEvent::HeightAboveTerrain(_) => {}
+                | SensorEvent::HeightAboveTerrain(_)
+                | SensorEvent::VisionApplied(_) => {}
             }
         } else if !matches!(
             ev,
-            SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_)
+            SensorEvent::Alignment(_)
+                | SensorEvent::HeightAboveTerrain(_)
+                | SensorEvent::VisionApplied(_)
         ) {
             self.pushed_before_init += 1;
         }
@@ -777,7 +782,10 @@ fn check_event(e: &SensorEvent) -> Result<(), Violation> {
                 "attitude event not a unit quaternion: {s:?}"
             )
         }
-        SensorEvent::Frame(_) | SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_) => {
+        SensorEvent::Frame(_)
+        | SensorEvent::Alignment(_)
+        | SensorEvent::HeightAboveTerrain(_)
+        | SensorEvent::VisionApplied(_) => {
             return Err(Violation(
                 "camera frame, start alignment or terrain height out of the MAVLink decoder: -"
                     .into(),

@@ -158,7 +158,8 @@ fn twin(setup: &FlightSetup) -> TwinFlight {
             SensorEvent::Frame(_)
             | SensorEvent::RefAttitude(_)
             | SensorEvent::Alignment(_)
-            | SensorEvent::HeightAboveTerrain(_) => {}
+            | SensorEvent::HeightAboveTerrain(_)
+            | SensorEvent::VisionApplied(_) => {}
         }
     }
     tw

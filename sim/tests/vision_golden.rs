@@ -18,8 +18,8 @@ use std::fmt::Write as _;
 use std::path::Path;
 
 use ianav::io::sensor_log::{SensorLogReader, SensorLogWriter};
-use ianav::nav::replay::{config_of, config_to_toml};
-use ianav::nav::{Navigator, VisionState};
+use ianav::nav::replay::{config_of, config_to_toml, replay};
+use ianav::nav::{NavSolution, Navigator, VisionState};
 use ianav::sensors::SensorEvent;
 use ianav_sim::flight::{
     CameraSetup, Flight, FlightObserver, FlightSetup, TruthSample, VisionOutput,
@@ -198,5 +198,95 @@ fn the_vns_and_ia_vns_replay_bit_for_bit_and_match_the_reference() {
         csv.lines().nth(first).unwrap_or("(none)"),
         reference.lines().nth(first).unwrap_or("(none)"),
         new_path.display()
+    );
+}
+
+/// The daemon's deferred vision (`NavConfig::vision_deferred`) on the golden flight's events:
+/// each frame's task run and handed back at once gives the inline solutions bit for bit; handed
+/// back late (as from a slow worker), the frames that come meanwhile are dropped and counted,
+/// and the recording with its markers replays to the same solutions bit for bit.
+#[test]
+fn deferred_vision_equals_inline_and_replays_where_its_results_were_applied() {
+    let setup = setup();
+    let mut flight = Flight::new(&setup, 2).unwrap();
+    let mut cfg = flight.navigator().unwrap().config().clone();
+    let mut rec = Recorder::default();
+    flight.run(&mut rec, |_| {}).unwrap();
+    let mut inline = Navigator::new(&cfg).unwrap();
+    let inline_solutions: Vec<NavSolution> =
+        rec.events.iter().filter_map(|e| inline.push(e)).collect();
+    let frames = rec
+        .events
+        .iter()
+        .filter(|e| matches!(e, SensorEvent::Frame(_)))
+        .count() as u64;
+    assert_eq!(inline.stats().frames, frames);
+
+    cfg.vision_deferred = true;
+    let mut at_once = Navigator::new(&cfg).unwrap();
+    let mut solutions = Vec::new();
+    for e in &rec.events {
+        solutions.extend(at_once.push(e));
+        if let Some(task) = at_once.take_vision_task() {
+            assert!(at_once.vision_out() && at_once.visual_systems().next().is_none());
+            assert!(at_once.apply_vision(task.run()).is_some());
+        }
+    }
+    assert_eq!(solutions, inline_solutions, "applied at once = inline");
+    assert!(
+        solutions.iter().filter(|s| s.vision_fix.is_some()).count() > 100,
+        "the comparison covers tracking"
+    );
+
+    // A worker that hands each result back 25 IMU samples (0.25 s) later: of the 10-Hz frames,
+    // those that come while one is out are dropped. The events fed, markers included, are what
+    // `ianav run --record` writes.
+    let mut late = Navigator::new(&cfg).unwrap();
+    let (mut fed, mut late_solutions) = (Vec::new(), Vec::new());
+    let mut out: Option<(ianav::nav::VisionDone, u32)> = None;
+    for e in &rec.events {
+        late_solutions.extend(late.push(e));
+        fed.push(e.clone());
+        if let Some(task) = late.take_vision_task() {
+            out = Some((task.run(), 0));
+        }
+        if matches!(e, SensorEvent::Imu(_))
+            && let Some((done, waited)) = out.take()
+        {
+            if waited < 25 {
+                out = Some((done, waited + 1));
+            } else {
+                fed.push(late.apply_vision(done).unwrap());
+            }
+        }
+    }
+    let busy = late.stats().frames_vision_busy;
+    assert!(
+        busy >= frames / 2 && busy < frames,
+        "{busy} of {frames} frames dropped while one was out"
+    );
+    assert_eq!(late.stats().vision_results_unmatched, 0);
+    assert!(late_solutions.iter().any(|s| s.vision_fix.is_some()));
+    assert_ne!(late_solutions, inline_solutions);
+
+    let mut writer = SensorLogWriter::new(Vec::new()).unwrap();
+    writer.write_nav_config(&config_to_toml(&cfg)).unwrap();
+    for e in &fed {
+        writer.write(e).unwrap();
+    }
+    let bytes = writer.finish().unwrap();
+    let reader = SensorLogReader::new(&bytes[..]).unwrap();
+    let recorded = config_of(&reader).unwrap();
+    assert!(recorded.vision_deferred);
+    let mut replayed = Vec::new();
+    let summary = replay(reader, &recorded, |s| {
+        replayed.push(*s);
+        Ok(())
+    })
+    .unwrap();
+    assert_eq!(summary.nav.frames_vision_busy, busy);
+    assert_eq!(
+        replayed, late_solutions,
+        "the replay applies each result at its marker"
     );
 }

@@ -588,7 +588,9 @@ async fn handle_raw(
             SensorEvent::Frame(_) => Kind::Frame,
             SensorEvent::RefAttitude(_) => Kind::RefAttitude,
             // Not decoded from MAVLink.
-            SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_) => continue,
+            SensorEvent::Alignment(_)
+            | SensorEvent::HeightAboveTerrain(_)
+            | SensorEvent::VisionApplied(_) => continue,
         };
         if !st.gate.accept(kind, ev.t_us()) {
             let (n, r) = (st.gate.rejected, st.gate.repeated);

@@ -246,8 +246,8 @@ impl Ins {
             }
             // Start alignments are the navigator's (`nav::policy`), not the running INS's.
             SensorEvent::Alignment(_) => None,
-            // The visual navigation's scale, not an INS input.
-            SensorEvent::HeightAboveTerrain(_) => None,
+            // The visual navigation's scale and its results' markers, not INS inputs.
+            SensorEvent::HeightAboveTerrain(_) | SensorEvent::VisionApplied(_) => None,
         }
     }
 

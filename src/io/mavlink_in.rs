@@ -431,7 +431,8 @@ impl InputDecoder {
                 SensorEvent::RefAttitude(_) => self.counters.attitude += 1,
                 SensorEvent::Frame(_)
                 | SensorEvent::Alignment(_)
-                | SensorEvent::HeightAboveTerrain(_) => {}
+                | SensorEvent::HeightAboveTerrain(_)
+                | SensorEvent::VisionApplied(_) => {}
             }
         }
         out

@@ -19,7 +19,9 @@
 //!   - 8 navigation configuration: `t_us` 0, then the navigator's settings (`nav::NavConfig`) as
 //!     UTF-8 TOML. Written once, right after the header, by the simulator and by `ianav run
 //!     --record`, so that `ianav replay` runs a log with the settings it was flown with;
-//!   - 9 height over the terrain: height (m), its σ (m).
+//!   - 9 height over the terrain: height (m), its σ (m);
+//!   - 10 a deferred frame's visual navigation handed back to the navigator: the frame's time
+//!     only (`nav::NavConfig::vision_deferred`; a replay applies the result there).
 //!
 //! Readers skip record kinds they do not know (the length says how far), so the format can
 //! grow without breaking old readers.
@@ -32,7 +34,7 @@ use nalgebra::{Quaternion, UnitQuaternion, Vector3};
 use crate::math::wgs84::Geodetic;
 use crate::sensors::{
     AirSample, Alignment, Frame, GnssFix, HeightAboveTerrain, ImuSample, MagSample, RefAttitude,
-    SensorErrorPriors, SensorEvent,
+    SensorErrorPriors, SensorEvent, VisionApplied,
 };
 
 /// File magic.
@@ -51,6 +53,7 @@ const KIND_REF_ATTITUDE: u8 = 6;
 const KIND_ALIGNMENT: u8 = 7;
 const KIND_NAV_CONFIG: u8 = 8;
 const KIND_HEIGHT_ABOVE_TERRAIN: u8 = 9;
+const KIND_VISION_APPLIED: u8 = 10;
 
 /// Errors reading a sensor log.
 #[derive(Debug, thiserror::Error)]
@@ -164,6 +167,7 @@ impl<W: Write> SensorLogWriter<W> {
                 put(&[h.h_agl_m, h.sigma_m]);
                 KIND_HEIGHT_ABOVE_TERRAIN
             }
+            SensorEvent::VisionApplied(_) => KIND_VISION_APPLIED,
         };
         let len = u32::try_from(self.payload.len())
             .map_err(|_| io::Error::new(io::ErrorKind::InvalidInput, "record too large"))?;
@@ -381,6 +385,7 @@ fn decode(kind: u8, payload: &[u8]) -> Option<SensorEvent> {
             h_agl_m: c.f64()?,
             sigma_m: c.f64()?,
         }),
+        KIND_VISION_APPLIED => SensorEvent::VisionApplied(VisionApplied { t_us }),
         _ => return None,
     };
     Some(event)

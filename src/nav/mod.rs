@@ -21,11 +21,11 @@ pub use policy::{StartKind, StartPolicy, StartRecord};
 pub use solution::{
     InsStatus, NavCovariance, NavSolution, PositionSource, VisionFix, VisionState, VisionStatus,
 };
-pub use vision::{ComparedVision, ComparedVisionError, VisualSystemView};
+pub use vision::{ComparedVision, ComparedVisionError, VisionDone, VisionTask, VisualSystemView};
 
 use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
-use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent};
+use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent, VisionApplied};
 use crate::vision::camera::{CameraConfig, CameraConfigError, Mounting};
 use crate::vision::vns::{VnsConfig, VnsCounters, VnsError};
 use history::{HistoryPose, PoseHistory};
@@ -90,6 +90,14 @@ pub struct NavConfig {
     /// INS pose at its own time (the pose history spans [`POSE_HISTORY_US`]).
     #[serde(default = "default_reorder_window_us")]
     pub reorder_window_us: u64,
+    /// Run the visual navigation away from the IMU path: a frame becomes a [`VisionTask`]
+    /// that the driver runs (on a worker thread) and hands back with [`Navigator::apply_vision`],
+    /// which returns the [`SensorEvent::VisionApplied`] marker the driver records; frames that
+    /// come while a task is out are dropped and counted (`frames_vision_busy`). A replay applies
+    /// each result where its marker stands, so it reproduces the solutions bit for bit. Off (the
+    /// simulator, the Monte Carlo): each frame is navigated when it is pushed.
+    #[serde(default, skip_serializing_if = "std::ops::Not::not")]
+    pub vision_deferred: bool,
 }
 
 fn default_reorder_window_us() -> u64 {
@@ -107,6 +115,7 @@ impl NavConfig {
             vision: VnsConfig::default(),
             compared_vision: Vec::new(),
             reorder_window_us: default_reorder_window_us(),
+            vision_deferred: false,
         }
     }
 }
@@ -122,6 +131,12 @@ pub struct NavigatorStats {
     pub frames_late: u64,
     /// Camera frames the visual navigation rejected (size, buffer, time order).
     pub frames_rejected: u64,
+    /// Camera frames dropped because the previous one's deferred vision had not come back
+    /// ([`NavConfig::vision_deferred`]).
+    pub frames_vision_busy: u64,
+    /// Deferred vision results that did not belong to the task out (ignored), or markers in a
+    /// replayed stream without a result to apply.
+    pub vision_results_unmatched: u64,
     /// Heights over the terrain rejected (non-finite, not positive).
     pub heights_rejected: u64,
     /// (Re)initialisations.
@@ -155,8 +170,17 @@ pub struct Navigator {
     imu_noisy: bool,
     /// The worst ratio when the IMU was last reported noisier than configured.
     imu_noisy_ratio: f64,
-    /// The visual navigation systems (with a camera).
-    visual: Option<VisualSystems>,
+    /// The visual navigation systems (with a camera; out with a [`VisionTask`] while their
+    /// deferred frame runs).
+    visual: Option<Box<VisualSystems>>,
+    /// The deferred frame's task, until the driver takes it.
+    vision_task: Option<VisionTask>,
+    /// Exposure time of the deferred frame whose systems are out, µs.
+    vision_out_t_us: Option<u64>,
+    /// The navigating system's state and pose after its latest frame (kept while the systems
+    /// are out).
+    vision_status: VisionStatus,
+    vision_fix: Option<VisionFix>,
     /// The latest height over the terrain.
     h_agl: Option<HeightAboveTerrain>,
 }
@@ -172,7 +196,11 @@ impl Navigator {
         cfg.vision.validate().map_err(VnsError::from)?;
         vision::validate_compared(&cfg.compared_vision)?;
         let visual = match &cfg.camera {
-            Some(c) => Some(VisualSystems::new(c, &cfg.vision, &cfg.compared_vision)?),
+            Some(c) => Some(Box::new(VisualSystems::new(
+                c,
+                &cfg.vision,
+                &cfg.compared_vision,
+            )?)),
             None => None,
         };
         Ok(Self {
@@ -188,7 +216,13 @@ impl Navigator {
             imu_noise: ImuNoiseMonitor::default(),
             imu_noisy: false,
             imu_noisy_ratio: 0.0,
+            vision_status: visual
+                .as_ref()
+                .map_or(VisionStatus::INACTIVE, |v| *v.status()),
+            vision_fix: None,
             visual,
+            vision_task: None,
+            vision_out_t_us: None,
             h_agl: None,
         })
     }
@@ -246,6 +280,12 @@ impl Navigator {
                 self.stats.frames += 1;
                 self.navigate_frame(f);
             }
+            SensorEvent::VisionApplied(_) => {
+                // A marker reaches here only without its result (a replay driver hands results
+                // back with `apply_vision`).
+                self.stats.vision_results_unmatched += 1;
+                return None;
+            }
             SensorEvent::HeightAboveTerrain(h) => {
                 if h.h_agl_m.is_finite() && h.h_agl_m > 0.0 && h.sigma_m.is_finite() {
                     self.h_agl = Some(*h);
@@ -272,7 +312,10 @@ impl Navigator {
                 self.since_imu.push(event.clone());
             }
             SensorEvent::Imu(_) => self.since_imu.clear(),
-            SensorEvent::Gnss(_) | SensorEvent::Frame(_) | SensorEvent::HeightAboveTerrain(_) => {}
+            SensorEvent::Gnss(_)
+            | SensorEvent::Frame(_)
+            | SensorEvent::HeightAboveTerrain(_)
+            | SensorEvent::VisionApplied(_) => {}
         }
         let Some(ins) = self.ins.as_mut() else {
             self.stats.events_before_init += 1;
@@ -292,47 +335,88 @@ impl Navigator {
         Some(nav)
     }
 
-    /// Run the visual systems on a frame.
+    /// Run the visual systems on a frame, or (deferred) hand them out with it.
     fn navigate_frame(&mut self, frame: &Frame) {
+        if self.cfg.camera.is_none() {
+            return;
+        }
         let Some(visual) = self.visual.as_mut() else {
+            self.stats.frames_vision_busy += 1;
             return;
         };
-        if visual
-            .process(frame, &self.history, self.h_agl.as_ref())
-            .is_err()
-        {
+        let job = visual.job(frame, &self.history, self.h_agl.as_ref());
+        if self.cfg.vision_deferred {
+            if let Some(systems) = self.visual.take() {
+                self.vision_out_t_us = Some(frame.t_us);
+                self.vision_task = Some(VisionTask::new(job, systems));
+            }
+        } else {
+            if visual.run(&job).is_err() {
+                self.stats.frames_rejected += 1;
+            }
+            self.vision_status = *visual.status();
+            self.vision_fix = visual.fix().copied();
+        }
+    }
+
+    /// The deferred frame's visual navigation, to run away from the IMU path
+    /// ([`NavConfig::vision_deferred`]); `None` when no frame waits.
+    pub fn take_vision_task(&mut self) -> Option<VisionTask> {
+        self.vision_task.take()
+    }
+
+    /// Hand back a finished task at this point of the event stream: the solutions from here on
+    /// carry its result. Returns the marker to record with the events
+    /// ([`SensorEvent::VisionApplied`]), or `None` (counted `vision_results_unmatched`, the
+    /// result dropped) when it is not the task that is out.
+    pub fn apply_vision(&mut self, done: VisionDone) -> Option<SensorEvent> {
+        if self.visual.is_some() || self.vision_out_t_us != Some(done.frame_t_us()) {
+            self.stats.vision_results_unmatched += 1;
+            return None;
+        }
+        self.vision_out_t_us = None;
+        if done.refused {
             self.stats.frames_rejected += 1;
         }
+        let t_us = done.frame_t_us();
+        self.vision_status = *done.systems.status();
+        self.vision_fix = done.systems.fix().copied();
+        self.visual = Some(done.systems);
+        Some(SensorEvent::VisionApplied(VisionApplied { t_us }))
+    }
+
+    /// Whether a deferred frame's visual systems are out (taken or not yet taken).
+    pub fn vision_out(&self) -> bool {
+        self.vision_out_t_us.is_some()
     }
 
     /// The visual navigation's state and latest frame.
     pub fn vision(&self) -> &VisionStatus {
-        self.visual
-            .as_ref()
-            .map_or(&VisionStatus::INACTIVE, VisualSystems::status)
+        &self.vision_status
     }
 
     /// The visual navigation's latest pose (while it tracks).
     pub fn vision_fix(&self) -> Option<&VisionFix> {
-        self.visual.as_ref().and_then(VisualSystems::fix)
+        self.vision_fix.as_ref()
     }
 
-    /// Every visual system (with a camera): the configured one first (`name` `None`), then the
+    /// Every visual system (with a camera; none while a deferred frame has them out): the
+    /// configured one first (`name` `None`), then the
     /// compared ones in their configured order.
     pub fn visual_systems(&self) -> impl Iterator<Item = VisualSystemView<'_>> {
-        self.visual.iter().flat_map(VisualSystems::views)
+        self.visual.iter().flat_map(|v| v.views())
     }
 
-    /// Counters of the visual navigation (with a camera).
+    /// Counters of the visual navigation (with a camera; `None` while a deferred frame has
+    /// the systems out).
     pub fn vns_counters(&self) -> Option<&VnsCounters> {
-        self.visual.as_ref().map(VisualSystems::counters)
+        self.visual.as_ref().map(|v| v.counters())
     }
 
-    /// Counters of the IA-VNS's steps (with a camera and any of them switched on).
+    /// Counters of the IA-VNS's steps (with a camera and any of them switched on; `None` while
+    /// a deferred frame has the systems out).
     pub fn aiding_counters(&self) -> Option<&crate::vision::vns::AidingCounters> {
-        self.visual
-            .as_ref()
-            .and_then(VisualSystems::aiding_counters)
+        self.visual.as_ref().and_then(|v| v.aiding_counters())
     }
 
     fn start_at(&mut self, record: StartRecord, init: &InsInit) {

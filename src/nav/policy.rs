@@ -147,9 +147,10 @@ impl StartState {
                 None
             }
             SensorEvent::Gnss(fix) => self.on_fix(policy, fix, running),
-            SensorEvent::Mag(_) | SensorEvent::Frame(_) | SensorEvent::HeightAboveTerrain(_) => {
-                None
-            }
+            SensorEvent::Mag(_)
+            | SensorEvent::Frame(_)
+            | SensorEvent::HeightAboveTerrain(_)
+            | SensorEvent::VisionApplied(_) => None,
         }
     }
 

@@ -48,6 +48,10 @@ pub enum ReplayError {
     /// Writing the output failed.
     #[error("writing the solutions: {0}")]
     Io(#[from] std::io::Error),
+    /// A deferred-vision marker names no frame whose vision is out (the log was recorded with
+    /// other settings than those replayed, or is corrupt).
+    #[error("vision result of the frame at t = {0} µs marked applied, but no such frame is out")]
+    VisionMarker(u64),
 }
 
 /// What a replay went through.
@@ -139,18 +143,36 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), ReplayError> {
 }
 
 /// Run every event of `reader` through a navigator built with `cfg`, handing each solution
-/// to `on_solution`.
+/// to `on_solution`. With deferred vision ([`NavConfig::vision_deferred`]) each frame's task is
+/// run when the navigator hands it out and its result applied where the log's
+/// [`SensorEvent::VisionApplied`](crate::sensors::SensorEvent::VisionApplied) marker stands, as
+/// the daemon did.
 pub fn replay<R: Read>(
     reader: SensorLogReader<R>,
     cfg: &NavConfig,
     mut on_solution: impl FnMut(&NavSolution) -> Result<(), ReplayError>,
 ) -> Result<ReplaySummary, ReplayError> {
+    use crate::sensors::SensorEvent;
     let mut nav = Navigator::new(cfg)?;
     let mut summary = ReplaySummary::default();
+    let mut vision_done = None;
     for event in reader {
         let event = event?;
         summary.events += 1;
-        if let Some(sol) = nav.push(&event) {
+        if let SensorEvent::VisionApplied(marker) = &event {
+            let done = vision_done
+                .take()
+                .filter(|d: &super::VisionDone| d.frame_t_us() == marker.t_us)
+                .ok_or(ReplayError::VisionMarker(marker.t_us))?;
+            nav.apply_vision(done)
+                .ok_or(ReplayError::VisionMarker(marker.t_us))?;
+            continue;
+        }
+        let sol = nav.push(&event);
+        if let Some(task) = nav.take_vision_task() {
+            vision_done = Some(task.run());
+        }
+        if let Some(sol) = sol {
             summary.solutions += 1;
             on_solution(&sol)?;
             summary.last = Some(sol);

@@ -144,6 +144,65 @@ pub struct VisualSystemView<'a> {
     pub aiding: Option<&'a AidingCounters>,
 }
 
+/// One frame and what the navigator knew of the INS at its time: all the visual systems read
+/// of the navigator, so that they can run away from the IMU path ([`VisionTask`]).
+#[derive(Debug, Clone)]
+pub(super) struct VisionJob {
+    frame: Frame,
+    /// `x̊₀` at the frame, for a system waiting for its start.
+    start: Option<VnsStart>,
+    /// The INS at the frame, for the IA-VNS.
+    ins: Option<InertialFrame>,
+}
+
+/// A frame's visual navigation taken out of a navigator whose vision is deferred
+/// ([`NavConfig::vision_deferred`](super::NavConfig::vision_deferred)): the job and the visual
+/// systems themselves, so that a worker thread can run it ([`VisionTask::run`]) while the
+/// navigator goes on with the IMU. The navigator has no visual systems until the result comes
+/// back ([`Navigator::apply_vision`](super::Navigator::apply_vision)).
+#[derive(Debug, Clone)]
+pub struct VisionTask {
+    job: VisionJob,
+    systems: Box<VisualSystems>,
+}
+
+impl VisionTask {
+    pub(super) fn new(job: VisionJob, systems: Box<VisualSystems>) -> Self {
+        Self { job, systems }
+    }
+
+    /// The frame's exposure time, µs.
+    pub fn frame_t_us(&self) -> u64 {
+        self.job.frame.t_us
+    }
+
+    /// Run the visual systems on the frame (the heavy part: tens of milliseconds).
+    pub fn run(self) -> VisionDone {
+        let Self { job, mut systems } = self;
+        let refused = systems.run(&job).is_err();
+        VisionDone {
+            frame_t_us: job.frame.t_us,
+            systems,
+            refused,
+        }
+    }
+}
+
+/// A finished [`VisionTask`], to hand back to its navigator.
+#[derive(Debug)]
+pub struct VisionDone {
+    frame_t_us: u64,
+    pub(super) systems: Box<VisualSystems>,
+    pub(super) refused: bool,
+}
+
+impl VisionDone {
+    /// The frame's exposure time, µs.
+    pub fn frame_t_us(&self) -> u64 {
+        self.frame_t_us
+    }
+}
+
 /// The systems of a navigator with a camera.
 #[derive(Debug, Clone)]
 pub(super) struct VisualSystems {
@@ -174,36 +233,33 @@ impl VisualSystems {
         })
     }
 
-    /// Run every system on `frame`; `Err` when the navigating system refused it (the frame is
-    /// the same for all, so the others refuse it too).
-    pub(super) fn process(
-        &mut self,
+    /// What the systems need of the navigator for `frame`: the INS at its time, read now from
+    /// the pose history (cheap; the systems may run later, on another thread).
+    pub(super) fn job(
+        &self,
         frame: &Frame,
         history: &PoseHistory,
         h_agl: Option<&HeightAboveTerrain>,
-    ) -> Result<(), VnsError> {
-        let systems =
-            || std::iter::once(&self.navigating).chain(self.compared.iter().map(|c| &c.1));
-        let any_waiting = systems().any(|s| {
-            matches!(
-                s.vns.state(),
-                VnsState::WaitingForStart | VnsState::Initialising
-            )
-        });
-        let start = any_waiting
-            .then(|| start_at(frame.t_us, history, h_agl, &self.zeta_bc))
-            .flatten();
-        let any_aided = systems().any(|s| s.vns.config().aiding.needs_ins());
-        let ins = any_aided
-            .then(|| inertial_frame(frame.t_us, history, &self.zeta_bc))
-            .flatten();
+    ) -> VisionJob {
+        // Both are read whether or not a system needs them: each system takes what its state
+        // and settings call for (`VisualSystem::process`), so the results do not change.
+        VisionJob {
+            frame: frame.clone(),
+            start: start_at(frame.t_us, history, h_agl, &self.zeta_bc),
+            ins: inertial_frame(frame.t_us, history, &self.zeta_bc),
+        }
+    }
+
+    /// Run every system on the job's frame; `Err` when the navigating system refused it (the
+    /// frame is the same for all, so the others refuse it too).
+    pub(super) fn run(&mut self, job: &VisionJob) -> Result<(), VnsError> {
         let zeta_bc = self.zeta_bc;
+        let (start, ins) = (job.start.as_ref(), job.ins.as_ref());
         for (_, system) in &mut self.compared {
             // A refused frame is counted once, by the navigating system below.
-            let _ = system.process(frame, start.as_ref(), ins.as_ref(), &zeta_bc);
+            let _ = system.process(&job.frame, start, ins, &zeta_bc);
         }
-        self.navigating
-            .process(frame, start.as_ref(), ins.as_ref(), &zeta_bc)
+        self.navigating.process(&job.frame, start, ins, &zeta_bc)
     }
 
     /// The navigating system's state and latest frame.

@@ -302,7 +302,9 @@ pub fn check_event(e: &SensorEvent) -> Result<(), String> {
         SensorEvent::RefAttitude(a) => a.q_nb.coords.iter().all(|x| x.is_finite()),
         SensorEvent::Frame(_) => true,
         // The MAVLink decoder never emits one.
-        SensorEvent::Alignment(_) | SensorEvent::HeightAboveTerrain(_) => false,
+        SensorEvent::Alignment(_)
+        | SensorEvent::HeightAboveTerrain(_)
+        | SensorEvent::VisionApplied(_) => false,
     };
     if ok { Ok(()) } else { Err(format!("{e:?}")) }
 }

@@ -477,7 +477,8 @@ impl Vehicle {
                 // The flight's sensors make none; the vehicle reports its own estimate.
                 SensorEvent::RefAttitude(_)
                 | SensorEvent::Alignment(_)
-                | SensorEvent::HeightAboveTerrain(_) => {}
+                | SensorEvent::HeightAboveTerrain(_)
+                | SensorEvent::VisionApplied(_) => {}
             }
         }
         self.collector.events = events;
