@@ -236,6 +236,8 @@ pub fn log_counters(c: &Counters) {
         tx_full = c.tx_queue_full,
         frames = c.frames_received,
         frames_dropped = c.frames_dropped,
+        frames_vision_busy = c.nav.frames_vision_busy,
+        vision_failures = c.vision_failures,
         camera_err = c.camera_errors,
         restarts = c.worker_restarts,
         latency_samples = c.latency_samples,

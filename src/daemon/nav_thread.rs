@@ -14,7 +14,7 @@ use tokio::sync::{mpsc, watch};
 
 use super::{Latest, Shared};
 use crate::io::sensor_log::SensorLogWriter;
-use crate::nav::{NavConfig, Navigator, StartKind};
+use crate::nav::{NavConfig, Navigator, StartKind, VisionDone, VisionTask};
 use crate::sensors::{Frame, SensorEvent};
 
 /// `ianav run --record FILE`: every event fed to the navigator, in the order fed (frames
@@ -245,12 +245,19 @@ pub fn spawn(
             let mut noisy_reported = 0_u64;
             let mut starts_logged = 0_u64;
             let mut merge = FrameMerge::new(frames.cap);
-            let feed_frame = |nav: &mut Navigator, recorder: &mut Option<Recorder>, f| {
+            let mut vision = VisionWorker::start(&nav);
+            let feed_frame = |nav: &mut Navigator,
+                              recorder: &mut Option<Recorder>,
+                              vision: &mut Option<VisionWorker>,
+                              f| {
                 let frame = SensorEvent::Frame(f);
                 if let Some(r) = recorder.as_mut() {
                     r.record(&frame, &shared);
                 }
                 nav.push(&frame);
+                if let Some(w) = vision.as_mut() {
+                    w.dispatch(nav);
+                }
             };
             // The denied-mode covariance budget is logged once per loss.
             let mut budget_logged = false;
@@ -269,17 +276,20 @@ pub fn spawn(
                         shared.count(|c| c.frames_dropped += dropped);
                     }
                 }
+                if let Some(w) = vision.as_mut() {
+                    w.collect(&mut nav, &mut recorder, &shared);
+                }
                 // Before the INS runs there is no pose for a frame's time to wait for.
                 if !nav.is_initialised() {
                     while let Some(f) = merge.pop() {
-                        feed_frame(&mut nav, &mut recorder, f);
+                        feed_frame(&mut nav, &mut recorder, &mut vision, f);
                     }
                 }
                 match input {
                     NavInput::FramesReady => {}
                     NavInput::Event(ev, rx_at) => {
                         while let Some(f) = merge.pop_due(ev.t_us()) {
-                            feed_frame(&mut nav, &mut recorder, f);
+                            feed_frame(&mut nav, &mut recorder, &mut vision, f);
                         }
                         if let SensorEvent::Gnss(fix) = &ev {
                             publisher.on_fix(fix.t_us);
@@ -373,8 +383,10 @@ pub fn spawn(
                 }
             }
             while let Some(f) = merge.pop() {
-                feed_frame(&mut nav, &mut recorder, f);
+                feed_frame(&mut nav, &mut recorder, &mut vision, f);
             }
+            // A frame still out is given up: its result would come after the last event.
+            drop(vision);
             let (n, i) = (*nav.stats(), nav.ins_stats().copied());
             shared.count(|c| {
                 c.nav = n;
@@ -384,6 +396,112 @@ pub fn spawn(
                 r.finish(&shared);
             }
         })
+}
+
+/// The thread that runs the deferred visual navigation ([`NavConfig::vision_deferred`]) away
+/// from the IMU path: one frame at a time, handed back to the navigator at the next event after
+/// it is done (within one IMU period), where the recording gets its marker. A panic in it is
+/// caught and logged; the navigator then keeps the frame out and counts the later frames busy
+/// (`frames_vision_busy`): the INS navigates on, without vision.
+struct VisionWorker {
+    tasks: Option<std::sync::mpsc::SyncSender<VisionTask>>,
+    done: std::sync::mpsc::Receiver<Result<VisionDone, String>>,
+    thread: Option<std::thread::JoinHandle<()>>,
+    /// Set once the worker has failed (logged once).
+    failed: bool,
+}
+
+impl VisionWorker {
+    /// The worker, when the navigator defers its vision; `None` otherwise (or when the thread
+    /// cannot be started: logged, and the frames are then counted busy).
+    fn start(nav: &Navigator) -> Option<Self> {
+        let cfg = nav.config();
+        if !(cfg.vision_deferred && cfg.camera.is_some()) {
+            return None;
+        }
+        let (task_tx, task_rx) = std::sync::mpsc::sync_channel::<VisionTask>(1);
+        let (done_tx, done_rx) = std::sync::mpsc::channel();
+        let thread = std::thread::Builder::new()
+            .name("ianav-vision".to_owned())
+            .spawn(move || {
+                while let Ok(task) = task_rx.recv() {
+                    let result =
+                        std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| task.run()))
+                            .map_err(|p| super::supervisor::panic_message(p.as_ref()));
+                    let failed = result.is_err();
+                    if done_tx.send(result).is_err() || failed {
+                        return;
+                    }
+                }
+            });
+        match thread {
+            Ok(thread) => Some(Self {
+                tasks: Some(task_tx),
+                done: done_rx,
+                thread: Some(thread),
+                failed: false,
+            }),
+            Err(e) => {
+                tracing::error!("vision: cannot start its thread ({e}); navigating without it");
+                None
+            }
+        }
+    }
+
+    /// Hand the navigator's waiting frame, if any, to the thread.
+    fn dispatch(&mut self, nav: &mut Navigator) {
+        let Some(task) = nav.take_vision_task() else {
+            return;
+        };
+        // The channel holds one task and the navigator hands out one at a time: a send fails
+        // only when the thread has ended (after a panic, reported by `collect`).
+        if let Some(tx) = &self.tasks
+            && tx.send(task).is_err()
+        {
+            self.tasks = None;
+        }
+    }
+
+    /// Hand a finished frame back to the navigator and record its marker.
+    fn collect(&mut self, nav: &mut Navigator, recorder: &mut Option<Recorder>, shared: &Shared) {
+        match self.done.try_recv() {
+            Ok(Ok(done)) => {
+                if let Some(marker) = nav.apply_vision(done)
+                    && let Some(r) = recorder.as_mut()
+                {
+                    r.record(&marker, shared);
+                }
+            }
+            Ok(Err(panic)) => {
+                self.tasks = None;
+                self.failed = true;
+                shared.count(|c| c.vision_failures += 1);
+                tracing::error!(
+                    "vision: its thread panicked ({panic}); navigating on the INS without vision"
+                );
+            }
+            Err(std::sync::mpsc::TryRecvError::Empty) => {}
+            Err(std::sync::mpsc::TryRecvError::Disconnected) => {
+                if !self.failed {
+                    self.failed = true;
+                    shared.count(|c| c.vision_failures += 1);
+                    tracing::error!(
+                        "vision: its thread ended; navigating on the INS without vision"
+                    );
+                }
+            }
+        }
+    }
+}
+
+impl Drop for VisionWorker {
+    fn drop(&mut self) {
+        // Closing the task channel ends the thread once its frame (if any) is done.
+        self.tasks = None;
+        if let Some(t) = self.thread.take() {
+            let _ = t.join();
+        }
+    }
 }
 
 /// Log a start of the navigator's; the first fixes the local frame's origin.

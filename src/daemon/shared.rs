@@ -160,6 +160,9 @@ pub struct Counters {
     pub frames_received: u64,
     /// Frames dropped (oldest first) because the navigation thread was late.
     pub frames_dropped: u64,
+    /// Times the deferred visual navigation's thread failed (a panic): the daemon then
+    /// navigates on the INS alone.
+    pub vision_failures: u64,
     /// Frames refused: time not mappable or out of order.
     pub frames_refused: u64,
     /// Camera connection / read errors.
