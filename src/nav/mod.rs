@@ -53,6 +53,9 @@ pub enum NavError {
     /// The compared systems are invalid.
     #[error(transparent)]
     ComparedVision(#[from] ComparedVisionError),
+    /// The flat terrain's height or σ is not finite, or the σ is negative.
+    #[error("flat_terrain: h_m = {0}, sigma_m = {1}: must be finite, sigma_m ≥ 0")]
+    FlatTerrain(f64, f64),
 }
 
 /// The camera as the navigation knows it: intrinsics and the *estimated* mounting (the true
@@ -98,6 +101,22 @@ pub struct NavConfig {
     /// simulator, the Monte Carlo): each frame is navigated when it is pushed.
     #[serde(default, skip_serializing_if = "std::ops::Not::not")]
     pub vision_deferred: bool,
+    /// Where no height over the terrain is measured (a daemon without a rangefinder or a
+    /// terrain model): the ground taken as flat at this height, so that a frame's height over
+    /// it is the INS's height at the frame less this. The visual navigation needs that height
+    /// to start (`x̊₀`); a measured one, fresher than [`MAX_HEIGHT_AGE_US`], is preferred.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub flat_terrain: Option<FlatTerrain>,
+}
+
+/// Flat ground at a known height ([`NavConfig::flat_terrain`]).
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct FlatTerrain {
+    /// Height of the ground above the WGS84 ellipsoid, m.
+    pub h_m: f64,
+    /// Its standard deviation, m (the visual navigation's scale error; the paper's 50 m).
+    pub sigma_m: f64,
 }
 
 fn default_reorder_window_us() -> u64 {
@@ -116,6 +135,7 @@ impl NavConfig {
             compared_vision: Vec::new(),
             reorder_window_us: default_reorder_window_us(),
             vision_deferred: false,
+            flat_terrain: None,
         }
     }
 }
@@ -185,6 +205,28 @@ pub struct Navigator {
     h_agl: Option<HeightAboveTerrain>,
 }
 
+/// The height over the terrain at a frame: the measured one if fresh, else the INS's height
+/// over the flat terrain (when configured and the INS pose at the frame is known, and the
+/// aircraft is above it).
+fn height_at_frame(
+    t_us: u64,
+    measured: Option<HeightAboveTerrain>,
+    flat: Option<FlatTerrain>,
+    history: &PoseHistory,
+) -> Option<HeightAboveTerrain> {
+    let fresh = measured.filter(|h| t_us.abs_diff(h.t_us) <= MAX_HEIGHT_AGE_US);
+    fresh.or_else(|| {
+        let ground = flat?;
+        let pose = history.at(t_us)?;
+        Some(HeightAboveTerrain {
+            t_us,
+            h_agl_m: pose.pos.h_m - ground.h_m,
+            sigma_m: ground.sigma_m,
+        })
+        .filter(|h| h.h_agl_m > 0.0)
+    })
+}
+
 /// A noisy IMU is reported again when its worst ratio grows by this factor.
 pub const IMU_NOISE_ESCALATION: f64 = 2.0;
 
@@ -194,6 +236,11 @@ impl Navigator {
         cfg.ins.validate().map_err(InsError::from)?;
         // Checked with or without a camera: the settings are recorded either way.
         cfg.vision.validate().map_err(VnsError::from)?;
+        if let Some(g) = cfg.flat_terrain
+            && !(g.h_m.is_finite() && g.sigma_m.is_finite() && g.sigma_m >= 0.0)
+        {
+            return Err(NavError::FlatTerrain(g.h_m, g.sigma_m));
+        }
         vision::validate_compared(&cfg.compared_vision)?;
         let visual = match &cfg.camera {
             Some(c) => Some(Box::new(VisualSystems::new(
@@ -344,7 +391,8 @@ impl Navigator {
             self.stats.frames_vision_busy += 1;
             return;
         };
-        let job = visual.job(frame, &self.history, self.h_agl.as_ref());
+        let h_agl = height_at_frame(frame.t_us, self.h_agl, self.cfg.flat_terrain, &self.history);
+        let job = visual.job(frame, &self.history, h_agl.as_ref());
         if self.cfg.vision_deferred {
             if let Some(systems) = self.visual.take() {
                 self.vision_out_t_us = Some(frame.t_us);
@@ -592,6 +640,61 @@ mod tests {
         assert_eq!(nav.stats().frames, 1);
         assert_eq!(nav.vision().state, VisionState::Inactive);
         assert!(nav.vns_counters().is_none());
+    }
+
+    #[test]
+    fn a_frame_takes_a_fresh_measured_height_else_the_flat_terrains() {
+        let mut history = PoseHistory::new(POSE_HISTORY_US);
+        for t_us in [1_000_000, 1_010_000] {
+            history.push(HistoryPose {
+                t_us,
+                pos: crate::math::wgs84::Geodetic {
+                    lat_rad: 0.7,
+                    lon_rad: 0.1,
+                    h_m: 2_700.0,
+                },
+                v_ned_mps: Vector3::zeros(),
+                q_nb: UnitQuaternion::identity(),
+            });
+        }
+        let measured = |t_us| HeightAboveTerrain {
+            t_us,
+            h_agl_m: 2_400.0,
+            sigma_m: 10.0,
+        };
+        let flat = FlatTerrain {
+            h_m: 200.0,
+            sigma_m: 50.0,
+        };
+        let at = |m, f| height_at_frame(1_005_000, m, f, &history).map(|h| (h.h_agl_m, h.sigma_m));
+        assert_eq!(
+            at(Some(measured(1_000_000)), Some(flat)),
+            Some((2_400.0, 10.0))
+        );
+        // Measured 2 s before the frame: stale, the flat terrain's.
+        assert_eq!(
+            at(Some(measured(3_005_000)), Some(flat)),
+            Some((2_500.0, 50.0))
+        );
+        assert_eq!(at(Some(measured(3_005_000)), None), None);
+        assert_eq!(at(None, None), None);
+        // Below the ground, or no INS pose at the frame: none.
+        let deep = FlatTerrain {
+            h_m: 3_000.0,
+            ..flat
+        };
+        assert_eq!(at(None, Some(deep)), None);
+        assert_eq!(height_at_frame(9_000_000, None, Some(flat), &history), None);
+        // Refused settings.
+        let mut cfg = NavConfig::new(InsConfig::default(), 2026.5);
+        cfg.flat_terrain = Some(FlatTerrain {
+            h_m: f64::NAN,
+            ..flat
+        });
+        assert!(matches!(
+            Navigator::new(&cfg),
+            Err(NavError::FlatTerrain(..))
+        ));
     }
 
     #[test]
