@@ -3,7 +3,8 @@
 //! is the same on every machine and run, and can be regenerated alone).
 //!
 //! - Messages: timestamps (0, maximum, an hour ahead, a reboot-sized step back, Unix time,
-//!   jitter, a neighbour's), sensor values at and past the decoder's limits, flags and enums,
+//!   jitter, a neighbour's), the rest of the stream restamped consistently (a reboot or a
+//!   clock jump the clock can confirm), sensor values at and past the decoder's limits, flags and enums,
 //!   foreign systems and our own component id, an intruding autopilot, duplication, deletion,
 //!   reordering, other message types, the other autopilot's stream, link outages and bursts.
 //! - Frames (CRC recomputed unless the mutation is the CRC): every field width at an extreme
@@ -386,7 +387,7 @@ fn mutate_messages(
 ) {
     let n = items.len();
     let i = r.random_range(0..n.max(1));
-    match (op % 12, n) {
+    match (op % 13, n) {
         (_, 0) => {}
         (0 | 1, _) => {
             let prev = i.checked_sub(1).and_then(|j| time_of(&items[j].msg));
@@ -477,6 +478,30 @@ fn mutate_messages(
                 })
                 .collect();
             items.splice(i..i, extra);
+        }
+        (11, _) => {
+            // The autopilot's clock restarts (a reboot) or jumps, consistently from message i
+            // on: every later stamp moves by the same step, so that the clock can confirm it
+            // (a lone odd stamp is held, docs/RELIABILITY.md).
+            let Some(t_i) = (i..n).find_map(|j| time_of(&items[j].msg)) else {
+                return;
+            };
+            let to = pick(
+                r,
+                &[
+                    0,
+                    20_000,
+                    1_000_000,
+                    t_i.saturating_sub(5_000_000),
+                    t_i.saturating_add(60_000_000),
+                    t_i.saturating_add(3_600_000_000),
+                ],
+            );
+            for it in items.iter_mut().skip(i) {
+                if let Some(t) = time_of(&it.msg) {
+                    set_time(&mut it.msg, t.saturating_sub(t_i).saturating_add(to));
+                }
+            }
         }
         _ => {
             // A link outage, or a burst (everything from i on arrives at once).
