@@ -199,7 +199,8 @@ pub struct UnitPlaneMatch {
 }
 
 impl UnitPlaneMatch {
-    /// Match from pixel coordinates (pixel-centre convention of [`Camera`]).
+    /// Match from pixel coordinates (pixel-centre convention of [`Camera`]), undistorted by
+    /// the camera's lens ([`Camera::ray`]): the homography holds between undistorted points.
     pub fn from_pixels(camera: &Camera, px_c1: &Vector2<f64>, px_c2: &Vector2<f64>) -> Self {
         Self {
             xy_c1: camera.ray(px_c1).xy(),

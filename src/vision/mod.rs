@@ -2,9 +2,13 @@
 //! semi-direct visual odometry of the paper's sections "Semi-Direct Visual Odometry" and
 //! "Optical Flow" (appendix), with the numbers of docs/REFERENCES.md A2.6.
 //!
-//! - [`camera`]: ideal pinhole (768 × 1024 px, f = 19 mm, 17 µm pixels), projection and
-//!   back-projection, the paper's optical-flow Jacobian, image-pyramid geometry, and the
-//!   body → camera mounting `zeta_bc` with its true-versus-estimated error model.
+//! - [`camera`]: pinhole (by default the authors' 768 × 1024 px, f = 19 mm, 17 µm pixels) with
+//!   an optional lens distortion, projection and back-projection, the paper's optical-flow
+//!   Jacobian, image-pyramid geometry, and the body → camera mounting `zeta_bc` with its
+//!   true-versus-estimated error model.
+//! - [`lens`]: the radial-tangential and fisheye distortion models, their Jacobians and
+//!   checked inverses.
+//! - [`calibration`]: OpenCV (YAML, XML) and ROS `camera_info` calibration files.
 //! - [`pose_opt`]: the pose optimisation of eqs. `svo_pose_optim_*` (Gauss-Newton on SE(3),
 //!   Tukey weights, outliers), open to a prior term for the IA-VNS.
 //! - [`depth_filter`]: the inverse-depth seeds of new features and their Gaussian × Beta update.
@@ -28,12 +32,14 @@
 //! `(u, v)` are in pixels with integer values at pixel *centres*, so the image spans
 //! `[-0.5, W - 0.5] × [-0.5, H - 0.5]`.
 
+pub mod calibration;
 pub mod camera;
 pub mod depth_filter;
 pub mod features;
 pub mod homography;
 pub mod iavns;
 pub mod klt;
+pub mod lens;
 pub mod map;
 pub mod matcher;
 pub mod pose_opt;

@@ -133,6 +133,11 @@ impl Vns {
         let pos = wgs84::ecef_to_geodetic(&zeta_ec1.translation.vector);
         let down_e = wgs84::q_en(pos.lat_rad, pos.lon_rad) * Vector3::z();
         let down_c1 = Unit::new_normalize(zeta_ec1.rotation.inverse() * down_e);
+        // `f_px` turns the pixel thresholds into distances on the unit plane of the
+        // undistorted bearings: exact at the image centre for every lens; towards the edges
+        // a pixel spans a different distance there (a barrel lens: more), so the RANSAC and
+        // tie-break thresholds become somewhat stricter or looser in pixels, which they
+        // tolerate (they are gates, not weights).
         let result = initialise_two_view(
             &matches,
             self.camera.f_px(),

@@ -177,7 +177,8 @@ impl Vns {
             };
             let t_cur_ref = zeta_ec.inverse() * kf.zeta_ec;
             // Below ~2 px of parallax a triangulation says nothing: wait for more baseline
-            // rather than count a miss.
+            // rather than count a miss. (`f b / d` is the parallax on the optical axis, where
+            // a pixel subtends 1/f rad for every lens model; a rough gate elsewhere too.)
             let baseline_m = t_cur_ref.translation.vector.norm();
             if baseline_m * self.camera.f_px() < MIN_SEED_PARALLAX_PX * s.seed.depth_m() {
                 keep.push(s);
@@ -209,6 +210,10 @@ impl Vns {
                 continue;
             };
             let t_ref_cur = t_cur_ref.inverse().translation.vector;
+            // SVO's pixel angle 2 atan(1 / 2f): a pixel's angle on the optical axis for every
+            // lens model, and over the whole field of an equidistant fisheye; off axis a
+            // perspective pixel subtends less (cos² θ), which SVO ignores too (σ a little
+            // pessimistic there).
             let Some(tau2) =
                 inverse_depth_variance(&s.f_ref, m.range_m, &t_ref_cur, 1.0, self.camera.f_px())
             else {
