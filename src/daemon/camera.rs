@@ -13,6 +13,10 @@
 //!   emitted (no autopilot clock is involved). The directory is read once.
 //! - `v4l2` / `gstreamer`: OpenCV `VideoCapture` on its own thread (`camera_cv.rs`),
 //!   with the `opencv` feature (without it the configuration check refuses them).
+//!
+//! With intrinsics configured (`camera.calibration_file` or the nominal pinhole's keys), a
+//! frame of another size, or whose buffer is not 8-bit grey of that size, is refused and
+//! counted in `frames_refused` ([`check_frame`]); the daemon goes on.
 
 use std::path::{Path, PathBuf};
 use std::sync::Arc;
@@ -40,6 +44,8 @@ pub(super) async fn run(
         frames,
         wake,
         shared,
+        expected: cfg.camera.intrinsics.map(|c| (c.width_px, c.height_px)),
+        refused_size: std::sync::atomic::AtomicU64::new(0),
     };
     match cfg.camera.source {
         CameraSourceKind::FrameStream => frame_stream(cfg, clock, out, stop).await,
@@ -67,10 +73,49 @@ pub(super) struct Out {
     frames: Arc<FrameQueue>,
     wake: mpsc::Sender<NavInput>,
     pub(super) shared: Arc<Shared>,
+    /// Frame size `(width, height)` of the configured intrinsics, if any.
+    expected: Option<(u32, u32)>,
+    /// Frames refused for their size or format (for the log's pace).
+    refused_size: std::sync::atomic::AtomicU64,
+}
+
+/// Whether a frame is what the camera's intrinsics describe: their size, 8-bit grey (one byte
+/// per pixel). The reason if not.
+pub fn check_frame(f: &Frame, expected: (u32, u32)) -> Result<(), String> {
+    let (w, h) = expected;
+    if (f.width, f.height) != (w, h) {
+        return Err(format!(
+            "{} × {} px, the camera's intrinsics are for {w} × {h} px",
+            f.width, f.height
+        ));
+    }
+    let bytes = u64::from(w) * u64::from(h);
+    if f.pixels.len() as u64 != bytes {
+        return Err(format!(
+            "{} bytes for {w} × {h} px: not 8-bit grey ({bytes} bytes)",
+            f.pixels.len()
+        ));
+    }
+    Ok(())
 }
 
 impl Out {
+    /// Queue a frame for the navigation thread, unless its size or format disagrees with the
+    /// configured intrinsics: then it is refused and counted (`frames_refused`), logged
+    /// (the first and every 100th), and the camera is not taken as alive for it.
     pub(super) fn deliver(&self, f: Frame, now_us: u64) {
+        if let Some(expected) = self.expected
+            && let Err(reason) = check_frame(&f, expected)
+        {
+            let n = self
+                .refused_size
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+            if n.is_multiple_of(100) {
+                tracing::warn!("camera: frame refused ({} so far): {reason}", n + 1);
+            }
+            self.shared.count(|c| c.frames_refused += 1);
+            return;
+        }
         let dropped = self.frames.push(f);
         self.shared.count(|c| {
             c.frames_received += 1;
@@ -314,5 +359,24 @@ mod tests {
         img.write_to(&mut std::io::Cursor::new(&mut png), image::ImageFormat::Png)
             .unwrap();
         assert_eq!(decode_image(&png), Some((2, 2, vec![0, 64, 128, 255])));
+    }
+
+    #[test]
+    fn frames_that_disagree_with_the_intrinsics_are_refused() {
+        let frame = |width: u32, height: u32, bytes: usize| Frame {
+            t_us: 0,
+            width,
+            height,
+            pixels: Arc::from(vec![0_u8; bytes]),
+        };
+        assert!(check_frame(&frame(1280, 960, 1280 * 960), (1280, 960)).is_ok());
+        let e = check_frame(&frame(960, 1280, 1280 * 960), (1280, 960)).unwrap_err();
+        assert_eq!(
+            e,
+            "960 × 1280 px, the camera's intrinsics are for 1280 × 960 px"
+        );
+        // A colour buffer where grey is expected.
+        let e = check_frame(&frame(4, 2, 24), (4, 2)).unwrap_err();
+        assert_eq!(e, "24 bytes for 4 × 2 px: not 8-bit grey (8 bytes)");
     }
 }

@@ -1,6 +1,6 @@
 //! Daemon configuration (`config/ianav.toml`; docs/DAEMON.md "Configuration keys"): the MAVLink
-//! link, what to request from and publish to the autopilot, the camera source, the INS
-//! configuration and logging. Unknown keys and out-of-range values are errors that name the key
+//! link, what to request from and publish to the autopilot, the camera (source, intrinsics or
+//! calibration file, mounting), the INS configuration and logging. Unknown keys and out-of-range values are errors that name the key
 //! (`output.rate_hz = 500: must be in [1, 200]`).
 
 use std::path::{Path, PathBuf};
@@ -8,6 +8,10 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::ins::{InsConfig, InsConfigError};
+
+mod camera;
+
+pub use camera::{CameraConfig, CameraSourceKind};
 
 /// Why a configuration was rejected. Each message is complete on its own line: no variant
 /// also returns its cause as `source()`, which printed the same text twice (once in the
@@ -35,6 +39,10 @@ pub enum ConfigError {
         /// What it must satisfy.
         reason: String,
     },
+    /// The camera's intrinsics (`camera.calibration_file` or the nominal pinhole's keys);
+    /// the message names the key, and the calibration file's own key.
+    #[error("{0}")]
+    Camera(crate::vision::camera::CameraConfigError),
     /// The INS configuration (inline `[ins]` or the file named by `navigation.ins_config`).
     #[error("{context}: {error}")]
     Ins {
@@ -356,87 +364,6 @@ fn default_true() -> bool {
     true
 }
 
-/// Camera source kind.
-#[derive(Debug, Clone, Copy, PartialEq, Eq, Deserialize)]
-#[serde(rename_all = "snake_case")]
-pub enum CameraSourceKind {
-    /// No camera (INS only).
-    None,
-    /// The simulator's frame stream (`io::frame_stream`) over TCP at `camera.address`.
-    FrameStream,
-    /// PNG / PGM files of `camera.path` in name order.
-    Directory,
-    /// A V4L2 device (`camera.device`): needs the `opencv` feature.
-    V4l2,
-    /// A GStreamer pipeline (`camera.pipeline`): needs the `opencv` feature.
-    Gstreamer,
-}
-
-/// `[camera]`.
-#[derive(Debug, Clone, PartialEq, Deserialize)]
-#[serde(deny_unknown_fields)]
-pub struct CameraConfig {
-    /// Source kind.
-    #[serde(default = "default_camera_source")]
-    pub source: CameraSourceKind,
-    /// `host:port` of the frame stream.
-    #[serde(default)]
-    pub address: String,
-    /// Directory of images.
-    #[serde(default)]
-    pub path: String,
-    /// Frame rate assumed for directory images whose name carries no timestamp, Hz.
-    #[serde(default = "default_camera_rate_hz")]
-    pub rate_hz: f64,
-    /// V4L2 device.
-    #[serde(default)]
-    pub device: String,
-    /// GStreamer pipeline ending in an appsink.
-    #[serde(default)]
-    pub pipeline: String,
-    /// Frames waiting for the navigation thread; older ones are dropped beyond this.
-    #[serde(default = "default_frame_queue")]
-    pub queue_frames: usize,
-    /// Longest wait between reconnection attempts, s.
-    #[serde(default = "default_retry_max_s")]
-    pub retry_max_s: f64,
-    /// The camera is declared lost after this long without a frame, s.
-    #[serde(default = "default_camera_timeout_s")]
-    pub timeout_s: f64,
-}
-
-fn default_camera_source() -> CameraSourceKind {
-    CameraSourceKind::None
-}
-fn default_camera_rate_hz() -> f64 {
-    10.0
-}
-fn default_frame_queue() -> usize {
-    4
-}
-fn default_retry_max_s() -> f64 {
-    5.0
-}
-fn default_camera_timeout_s() -> f64 {
-    2.0
-}
-
-impl Default for CameraConfig {
-    fn default() -> Self {
-        Self {
-            source: default_camera_source(),
-            address: String::new(),
-            path: String::new(),
-            rate_hz: default_camera_rate_hz(),
-            device: String::new(),
-            pipeline: String::new(),
-            queue_frames: default_frame_queue(),
-            retry_max_s: default_retry_max_s(),
-            timeout_s: default_camera_timeout_s(),
-        }
-    }
-}
-
 /// `[navigation]`.
 #[derive(Debug, Clone, PartialEq, Deserialize, Default)]
 #[serde(deny_unknown_fields)]
@@ -534,7 +461,8 @@ fn merge_tables(base: &mut toml::Table, over: &toml::Table) {
 }
 
 impl DaemonConfig {
-    /// Read and validate a file; `navigation.ins_config` is resolved against its directory.
+    /// Read and validate a file; `navigation.ins_config` and `camera.calibration_file` are
+    /// resolved against its directory.
     pub fn from_file(path: &Path) -> Result<Self, ConfigError> {
         let text = std::fs::read_to_string(path).map_err(|error| ConfigError::Read {
             path: path.to_owned(),
@@ -543,7 +471,8 @@ impl DaemonConfig {
         Self::from_toml_str(&text, path.parent())
     }
 
-    /// Parse and validate TOML text; `base_dir` resolves a relative `navigation.ins_config`.
+    /// Parse and validate TOML text; `base_dir` resolves a relative `navigation.ins_config`
+    /// and `camera.calibration_file` (without it they are taken from the working directory).
     pub fn from_toml_str(text: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
         let raw: RawConfig = toml::from_str(text).map_err(ConfigError::Toml)?;
         let ins_error = |context: String| move |error| ConfigError::Ins { context, error };
@@ -590,11 +519,13 @@ impl DaemonConfig {
                 )
             })?)
         };
+        let mut camera = raw.camera;
+        camera::resolve(&mut camera, base_dir)?;
         let cfg = Self {
             mavlink: raw.mavlink,
             input: raw.input,
             output: raw.output,
-            camera: raw.camera,
+            camera,
             navigation: raw.navigation,
             ins,
             logging: raw.logging,
@@ -675,63 +606,7 @@ impl DaemonConfig {
                 "must be in [0, 60]",
             ));
         }
-        let c = &self.camera;
-        match c.source {
-            CameraSourceKind::None => {}
-            CameraSourceKind::FrameStream => {
-                if c.address.is_empty() || !c.address.contains(':') {
-                    return Err(invalid(
-                        "camera.address",
-                        format!("{:?}", c.address),
-                        "must be host:port with camera.source = \"frame_stream\"",
-                    ));
-                }
-            }
-            CameraSourceKind::Directory => {
-                if c.path.is_empty() {
-                    return Err(invalid(
-                        "camera.path",
-                        "\"\"",
-                        "must name a directory with camera.source = \"directory\"",
-                    ));
-                }
-            }
-            CameraSourceKind::V4l2 | CameraSourceKind::Gstreamer if !cfg!(feature = "opencv") => {
-                return Err(invalid(
-                    "camera.source",
-                    format!("{:?}", c.source).to_lowercase(),
-                    "requires the `opencv` feature, which this build does not have",
-                ));
-            }
-            CameraSourceKind::V4l2 => {
-                if c.device.is_empty() {
-                    return Err(invalid(
-                        "camera.device",
-                        "\"\"",
-                        "must name a device (e.g. /dev/video0) with camera.source = \"v4l2\"",
-                    ));
-                }
-            }
-            CameraSourceKind::Gstreamer => {
-                if c.pipeline.is_empty() {
-                    return Err(invalid(
-                        "camera.pipeline",
-                        "\"\"",
-                        "must be a pipeline ending in an appsink with camera.source = \"gstreamer\"",
-                    ));
-                }
-            }
-        }
-        in_range("camera.rate_hz", c.rate_hz, 0.1, 100.0)?;
-        if !(1..=64).contains(&c.queue_frames) {
-            return Err(invalid(
-                "camera.queue_frames",
-                c.queue_frames,
-                "must be in [1, 64]",
-            ));
-        }
-        in_range("camera.retry_max_s", c.retry_max_s, 0.1, 600.0)?;
-        in_range("camera.timeout_s", c.timeout_s, 0.1, 600.0)?;
+        camera::validate(&self.camera)?;
         let n = &self.navigation;
         if n.mag_decimal_year != 0.0 {
             in_range(
