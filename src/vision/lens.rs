@@ -170,11 +170,11 @@ impl Lens {
                     let (g, dg) = rational_factor(&distortion, r * r);
                     g > 0.0 && g + 2.0 * r * r * dg > 0.0
                 };
-                scan_fold(increasing).map(f64::tan)
+                scan_fold(increasing).map(radius_at)
             }
             Distortion::Fisheye { .. } => {
                 let increasing = |theta: f64| fisheye_theta_d(&distortion, theta).1 > 0.0;
-                scan_fold(increasing).map(f64::tan)
+                scan_fold(increasing).map(radius_at)
             }
         }
         .ok_or(LensError::FoldsAtAxis)?;
@@ -312,6 +312,16 @@ impl Lens {
             };
         }
         Err(UndistortError::NoConvergence(MAX_FISHEYE_ITERATIONS))
+    }
+}
+
+/// The undistorted normalised radius at `theta` off axis; ∞ at 90° (no fold in front of the
+/// camera).
+fn radius_at(theta: f64) -> f64 {
+    if theta >= std::f64::consts::FRAC_PI_2 {
+        f64::INFINITY
+    } else {
+        theta.tan()
     }
 }
 
@@ -565,6 +575,11 @@ mod tests {
             fe.undistort(&Vector2::new(0.0, 0.8)),
             Err(UndistortError::OutsideModel)
         );
+        // Realistic lenses: the plumb_bob folds far outside its image (r ≈ 1.8, 61°); the
+        // fisheye increases all the way to 90°.
+        let r = Lens::new(plumb_bob()).unwrap().max_radius();
+        assert!((1.7..1.9).contains(&r), "{r}");
+        assert_eq!(Lens::new(fisheye()).unwrap().max_radius(), f64::INFINITY);
         // A model that folds at once is refused.
         let bad = Distortion::RadialTangential {
             k1: -1e6,
