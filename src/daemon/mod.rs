@@ -99,9 +99,25 @@ pub enum DaemonError {
 /// The navigation core's settings for this daemon: its INS, started by the core's rules with
 /// the magnetic model of `mag_decimal_year`, and started again at the first fix at
 /// `input.start_airspeed_mps` when first started below it (on the ground).
+///
+/// With a camera source, the visual navigation is the paper's IA-VNS (docs/IAVNS.md), run off
+/// the IMU path (`vision_deferred`, docs/DAEMON.md "Vision off the IMU path") and started from
+/// the INS's height over `camera.terrain_height_m`.
 pub fn nav_config(cfg: &DaemonConfig, mag_decimal_year: f64) -> crate::nav::NavConfig {
     let mut nav = crate::nav::NavConfig::new(cfg.ins.clone(), mag_decimal_year);
     nav.start.restart_airspeed_mps = Some(cfg.input.start_airspeed_mps);
+    if let Some(camera) = cfg.camera.nav_camera() {
+        nav.camera = Some(camera);
+        nav.vision.aiding = crate::vision::vns::AidingConfig::paper();
+        nav.vision_deferred = true;
+        nav.flat_terrain = cfg
+            .camera
+            .terrain_height_m
+            .map(|h_m| crate::nav::FlatTerrain {
+                h_m,
+                sigma_m: cfg.camera.terrain_height_sigma_m,
+            });
+    }
     nav
 }
 
@@ -315,6 +331,42 @@ async fn stopped_after(stop: &mut watch::Receiver<bool>, d: Duration) -> bool {
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn a_camera_source_runs_the_ia_vns_deferred_from_the_configured_ground() {
+        let toml = |camera: &str| {
+            format!(
+                "[mavlink]\nconnection = \"udpin:127.0.0.1:14540\"\n[output]\nrate_hz = 30\n\
+                 [camera]\n{camera}\n"
+            )
+        };
+        let parse = |camera: &str| DaemonConfig::from_toml_str(&toml(camera), None).unwrap();
+        let none = nav_config(&parse("source = \"none\""), 2026.5);
+        assert!(none.camera.is_none() && !none.vision_deferred && none.flat_terrain.is_none());
+        assert_eq!(none.vision, crate::vision::vns::VnsConfig::default());
+        let cfg = parse(
+            "source = \"frame_stream\"\naddress = \"127.0.0.1:5600\"\n\
+             terrain_height_m = 180.0\nterrain_height_sigma_m = 20.0",
+        );
+        let nav = nav_config(&cfg, 2026.5);
+        assert_eq!(nav.camera, cfg.camera.nav_camera());
+        assert!(nav.camera.is_some() && nav.vision_deferred);
+        assert_eq!(nav.vision.aiding, crate::vision::vns::AidingConfig::paper());
+        assert_eq!(
+            nav.flat_terrain,
+            Some(crate::nav::FlatTerrain {
+                h_m: 180.0,
+                sigma_m: 20.0
+            })
+        );
+        assert!(crate::nav::Navigator::new(&nav).is_ok());
+        let bad = DaemonConfig::from_toml_str(&toml("terrain_height_m = 1e9"), None);
+        assert!(
+            bad.unwrap_err()
+                .to_string()
+                .starts_with("camera.terrain_height_m"),
+        );
+    }
 
     /// The memory bound stated in docs/DAEMON.md: queue capacities × element sizes.
     #[test]

@@ -163,7 +163,8 @@ pub struct Counters {
     /// Times the deferred visual navigation's thread failed (a panic): the daemon then
     /// navigates on the INS alone.
     pub vision_failures: u64,
-    /// Frames refused: time not mappable or out of order.
+    /// Frames refused: time not mappable or out of order, or a size or pixel format that
+    /// disagrees with the configured intrinsics.
     pub frames_refused: u64,
     /// Camera connection / read errors.
     pub camera_errors: u64,
