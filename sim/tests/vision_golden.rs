@@ -290,3 +290,75 @@ fn deferred_vision_equals_inline_and_replays_where_its_results_were_applied() {
         "the replay applies each result at its marker"
     );
 }
+
+/// The fused solution on real frames (docs/FUSION.md): the golden flight with the GNSS lost
+/// at 4 s. Before the loss the published solution is the INS's, bit for bit; after it, while
+/// the IA-VNS tracks, the horizontal position is the latest fix carried by the INS (the fused
+/// minus the INS position equals the fix minus the INS at its exposure), the source is vision,
+/// the vertical and the attitude stay the INS's, and every change of source moved the reset
+/// counter once.
+#[test]
+fn after_the_loss_the_published_position_is_the_ia_vns_fix_carried_by_the_ins() {
+    let mut setup = setup();
+    setup.scenario.gnss_loss_s = 4.0;
+    let mut flight = Flight::new(&setup, 2).unwrap();
+    let mut cfg = flight.navigator().unwrap().config().clone();
+    let mut rec = Recorder::default();
+    flight.run(&mut rec, |_| {}).unwrap();
+    let mut plain = Navigator::new(&cfg).unwrap();
+    cfg.fusion = Some(ianav::nav::fusion::FusionConfig::default());
+    let mut fused = Navigator::new(&cfg).unwrap();
+    let (mut denied, mut from_vision) = (0, 0);
+    let mut reset_counters = (0_u8, 0_u8);
+    for e in &rec.events {
+        let (p, f) = (plain.push(e), fused.push(e));
+        assert_eq!(p.is_some(), f.is_some());
+        let (Some(p), Some(f)) = (p, f) else { continue };
+        reset_counters = (p.reset_counter, f.reset_counter);
+        if !p.ins_status.gnss_denied {
+            assert_eq!(f.pos, p.pos);
+            assert_eq!(f.cov, p.cov);
+            assert_eq!(f.horizontal_source, ianav::nav::PositionSource::Ins);
+            continue;
+        }
+        denied += 1;
+        assert_eq!(
+            (f.pos.h_m, f.q_nb, f.v_ned_mps),
+            (p.pos.h_m, p.q_nb, p.v_ned_mps)
+        );
+        assert_eq!(f.cov.position_m2[(2, 2)], p.cov.position_m2[(2, 2)]);
+        let Some(fix) = f
+            .vision_fix
+            .filter(|_| f.vision.state == VisionState::Tracking)
+        else {
+            continue;
+        };
+        from_vision += 1;
+        assert_eq!(f.horizontal_source, ianav::nav::PositionSource::Vision);
+        let ins_at_fix = fused.ins_pose_at(fix.t_us).unwrap();
+        let fix_offset = ianav::math::wgs84::ned_difference_m(&ins_at_fix.pos, &fix.pos).xy();
+        let published = ianav::math::wgs84::ned_difference_m(&p.pos, &f.pos).xy();
+        // First order about the current position: the offset's metres change by
+        // |offset| × distance since the fix / R, far under a millimetre.
+        assert!(
+            (published - fix_offset).norm() < 1e-3,
+            "t {} µs: published {published}, fix {fix_offset}",
+            f.t_us
+        );
+        // At least the fix's own variance per axis (σ₀²).
+        assert!(f.cov.position_m2[(0, 0)] >= 12.4 * 12.4 - 1e-9);
+    }
+    // The loss is declared 1.5 s after the last fix (the INS's timeout): 2.5 s of denial.
+    assert!(
+        denied >= 200 && from_vision >= 200,
+        "{denied} denied, {from_vision} from vision"
+    );
+    let stats = fused.stats();
+    assert!(stats.horizontal_source_changes >= 1);
+    assert_eq!(
+        reset_counters.1.wrapping_sub(reset_counters.0),
+        stats.horizontal_source_changes as u8
+    );
+    assert!(stats.fused_vision_fixes > 30);
+    assert_eq!(stats.vision_fixes_without_ins_pose, 0);
+}

@@ -365,7 +365,7 @@ fn default_true() -> bool {
 }
 
 /// `[navigation]`.
-#[derive(Debug, Clone, PartialEq, Deserialize, Default)]
+#[derive(Debug, Clone, PartialEq, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct NavigationConfig {
     /// Path of an INS configuration (`config/ins.toml` format), relative to this file's
@@ -375,6 +375,29 @@ pub struct NavigationConfig {
     /// Epoch of the magnetic model, decimal year; 0 = from the system clock at start.
     #[serde(default)]
     pub mag_decimal_year: f64,
+    /// With a camera: after the GNSS loss, publish the IA-VNS's horizontal position (carried
+    /// between frames by the INS) instead of the INS's (docs/FUSION.md). Off: the IA-VNS runs
+    /// and is logged, the INS is published.
+    #[serde(default = "yes")]
+    pub vision_position: bool,
+    /// `[navigation.vision_error]`: the visual position's error model (docs/FUSION.md).
+    #[serde(default)]
+    pub vision_error: crate::nav::fusion::FusionConfig,
+}
+
+fn yes() -> bool {
+    true
+}
+
+impl Default for NavigationConfig {
+    fn default() -> Self {
+        Self {
+            ins_config: String::new(),
+            mag_decimal_year: 0.0,
+            vision_position: true,
+            vision_error: crate::nav::fusion::FusionConfig::default(),
+        }
+    }
 }
 
 /// `[logging]`.
@@ -616,6 +639,13 @@ impl DaemonConfig {
                 2030.0,
             )?;
         }
+        n.vision_error.validate().map_err(|e| {
+            invalid(
+                &format!("navigation.vision_error.{}", e.0),
+                number(e.1),
+                "must be finite and ≥ 0",
+            )
+        })?;
         let l = &self.logging;
         if l.level.trim().is_empty() {
             return Err(invalid("logging.level", "\"\"", "must not be empty"));

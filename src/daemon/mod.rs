@@ -102,7 +102,8 @@ pub enum DaemonError {
 ///
 /// With a camera source, the visual navigation is the paper's IA-VNS (docs/IAVNS.md), run off
 /// the IMU path (`vision_deferred`, docs/DAEMON.md "Vision off the IMU path") and started from
-/// the INS's height over `camera.terrain_height_m`.
+/// the INS's height over `camera.terrain_height_m`; its horizontal position is published after
+/// the GNSS loss unless `navigation.vision_position` is off (docs/FUSION.md).
 pub fn nav_config(cfg: &DaemonConfig, mag_decimal_year: f64) -> crate::nav::NavConfig {
     let mut nav = crate::nav::NavConfig::new(cfg.ins.clone(), mag_decimal_year);
     nav.start.restart_airspeed_mps = Some(cfg.input.start_airspeed_mps);
@@ -117,6 +118,10 @@ pub fn nav_config(cfg: &DaemonConfig, mag_decimal_year: f64) -> crate::nav::NavC
                 h_m,
                 sigma_m: cfg.camera.terrain_height_sigma_m,
             });
+        nav.fusion = cfg
+            .navigation
+            .vision_position
+            .then_some(cfg.navigation.vision_error);
     }
     nav
 }
@@ -365,6 +370,46 @@ mod tests {
             bad.unwrap_err()
                 .to_string()
                 .starts_with("camera.terrain_height_m"),
+        );
+    }
+
+    /// With a camera the IA-VNS position is published after the loss, with the configured
+    /// error model, unless switched off; an invalid model is refused by its key.
+    #[test]
+    fn a_camera_source_publishes_the_visual_position_unless_told_not_to() {
+        let toml = |extra: &str| {
+            format!(
+                "[mavlink]\nconnection = \"udpin:127.0.0.1:14540\"\n[output]\nrate_hz = 30\n\
+                 [camera]\nsource = \"frame_stream\"\naddress = \"127.0.0.1:5600\"\n\
+                 terrain_height_m = 180.0\n[navigation]\n{extra}\n"
+            )
+        };
+        let parse = |extra: &str| DaemonConfig::from_toml_str(&toml(extra), None);
+        let on = nav_config(&parse("").unwrap(), 2026.5);
+        assert_eq!(on.fusion, Some(crate::nav::fusion::FusionConfig::default()));
+        let tuned = nav_config(
+            &parse("[navigation.vision_error]\nk_per_m = 0.01").unwrap(),
+            2026.5,
+        );
+        assert_eq!(tuned.fusion.map(|f| f.k_per_m), Some(0.01));
+        let off = nav_config(&parse("vision_position = false").unwrap(), 2026.5);
+        assert_eq!(off.fusion, None);
+        assert!(off.camera.is_some());
+        let bad = parse("[navigation.vision_error]\nsigma0_m = -3.0").unwrap_err();
+        assert!(
+            bad.to_string()
+                .starts_with("navigation.vision_error.sigma0_m = -3"),
+            "{bad}"
+        );
+        let none = DaemonConfig::from_toml_str(
+            "[mavlink]\nconnection = \"udpin:127.0.0.1:14540\"\n[output]\nrate_hz = 30\n",
+            None,
+        )
+        .unwrap();
+        assert_eq!(
+            nav_config(&none, 2026.5).fusion,
+            None,
+            "no camera, no fusion"
         );
     }
 

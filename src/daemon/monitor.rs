@@ -8,6 +8,7 @@ use tokio::sync::watch;
 use super::shared::{Context, Counters, Latest};
 use super::{MAX_SOLUTION_AGE_US, stopped_after};
 use crate::io::mavlink_out::{self, Health};
+use crate::nav::PositionSource;
 use mavlink::dialects::ardupilotmega as apm;
 
 /// Health flags watched by the monitor.
@@ -19,6 +20,7 @@ struct Flags {
     gnss_ok: Option<bool>,
     camera_ok: bool,
     reset_counter: u8,
+    horizontal_source: Option<PositionSource>,
 }
 
 /// HEARTBEAT at 1 Hz, STATUSTEXT on state changes, counters in the log, sd_notify.
@@ -81,14 +83,28 @@ pub(super) async fn monitor(ctx: Context, latest: watch::Receiver<Option<Latest>
         flags.link_up = link_up;
         // Estimator.
         if let Some(l) = l {
+            let source = l.sol.horizontal_source;
             if !flags.initialised {
                 flags.initialised = true;
                 flags.reset_counter = l.sol.reset_counter;
                 outbox.status(S::MAV_SEVERITY_INFO, "ianav: INS initialised");
             } else if l.sol.reset_counter != flags.reset_counter {
                 flags.reset_counter = l.sol.reset_counter;
-                outbox.status(S::MAV_SEVERITY_WARNING, "ianav: estimator reset");
+                // A change of the horizontal source also moves the reset counter: say which.
+                let changed = flags.horizontal_source != Some(source);
+                match (changed, source, l.sol.ins.gnss_denied) {
+                    (true, PositionSource::Vision, _) => outbox.status(
+                        S::MAV_SEVERITY_NOTICE,
+                        "ianav: horizontal position from vision",
+                    ),
+                    (true, PositionSource::Ins, true) => outbox.status(
+                        S::MAV_SEVERITY_WARNING,
+                        "ianav: vision lost, INS dead reckoning",
+                    ),
+                    _ => outbox.status(S::MAV_SEVERITY_WARNING, "ianav: estimator reset"),
+                }
             }
+            flags.horizontal_source = Some(source);
         }
         let timeout_us = (cfg.input.gnss_loss_timeout_s * 1e6) as u64;
         // In sensor time while solutions flow (with the autopilot clock a vehicle at 10× real
@@ -237,6 +253,8 @@ pub fn log_counters(c: &Counters) {
         frames = c.frames_received,
         frames_dropped = c.frames_dropped,
         frames_vision_busy = c.nav.frames_vision_busy,
+        vision_fixes_fused = c.nav.fused_vision_fixes,
+        source_changes = c.nav.horizontal_source_changes,
         vision_failures = c.vision_failures,
         camera_err = c.camera_errors,
         restarts = c.worker_restarts,

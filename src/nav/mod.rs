@@ -8,9 +8,11 @@
 //! The VNS is the paper's baseline: it starts from the INS pose and the height over the
 //! terrain at its first image (`x̊₀`) and never reads the INS afterwards; the IA-VNS reads it at
 //! every frame. The configured system's pose is reported beside the fused solution
-//! ([`NavSolution::vision_fix`]); the fused position stays the INS's. Other systems can run
-//! beside it on the same frames for comparison ([`vision`]).
+//! ([`NavSolution::vision_fix`]); with [`NavConfig::fusion`] it is also the fused horizontal
+//! position after the GNSS loss ([`fusion`]). Other systems can run beside it on the same
+//! frames for comparison ([`vision`]).
 
+pub mod fusion;
 pub mod history;
 pub mod policy;
 pub mod replay;
@@ -28,6 +30,7 @@ use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
 use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent, VisionApplied};
 use crate::vision::camera::{CameraConfig, CameraConfigError, Mounting};
 use crate::vision::vns::{VnsConfig, VnsCounters, VnsError};
+use fusion::{Fusion, FusionConfig, FusionConfigError};
 use history::{HistoryPose, PoseHistory};
 use policy::{Running, StartState};
 use vision::VisualSystems;
@@ -53,6 +56,9 @@ pub enum NavError {
     /// The compared systems are invalid.
     #[error(transparent)]
     ComparedVision(#[from] ComparedVisionError),
+    /// The fusion settings are invalid.
+    #[error(transparent)]
+    Fusion(#[from] FusionConfigError),
     /// The flat terrain's height or σ is not finite, or the σ is negative.
     #[error("flat_terrain: h_m = {0}, sigma_m = {1}: must be finite, sigma_m ≥ 0")]
     FlatTerrain(f64, f64),
@@ -107,6 +113,11 @@ pub struct NavConfig {
     /// to start (`x̊₀`); a measured one, fresher than [`MAX_HEIGHT_AGE_US`], is preferred.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub flat_terrain: Option<FlatTerrain>,
+    /// Publish the visual horizontal position after the GNSS loss ([`fusion`]); without it
+    /// (the paper's evaluation, the simulator) the fused position is the INS's and the visual
+    /// fix is only reported beside it.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub fusion: Option<FusionConfig>,
 }
 
 /// Flat ground at a known height ([`NavConfig::flat_terrain`]).
@@ -136,6 +147,7 @@ impl NavConfig {
             reorder_window_us: default_reorder_window_us(),
             vision_deferred: false,
             flat_terrain: None,
+            fusion: None,
         }
     }
 }
@@ -168,6 +180,12 @@ pub struct NavigatorStats {
     /// Times the IMU was found noisier than configured, or [`IMU_NOISE_ESCALATION`] times
     /// noisier than at the last report (see [`Navigator::imu_noise`]).
     pub imu_noisier_than_configured: u64,
+    /// Visual fixes taken into the fused position ([`NavConfig::fusion`]).
+    pub fused_vision_fixes: u64,
+    /// Visual fixes without an INS pose at their exposure, not fused.
+    pub vision_fixes_without_ins_pose: u64,
+    /// Changes of the fused horizontal source (each moves the reset counter).
+    pub horizontal_source_changes: u64,
 }
 
 /// The navigation core.
@@ -203,6 +221,7 @@ pub struct Navigator {
     vision_fix: Option<VisionFix>,
     /// The latest height over the terrain.
     h_agl: Option<HeightAboveTerrain>,
+    fusion: Fusion,
 }
 
 /// The height over the terrain at a frame: the measured one if fresh, else the INS's height
@@ -242,6 +261,9 @@ impl Navigator {
             return Err(NavError::FlatTerrain(g.h_m, g.sigma_m));
         }
         vision::validate_compared(&cfg.compared_vision)?;
+        if let Some(f) = &cfg.fusion {
+            f.validate()?;
+        }
         let visual = match &cfg.camera {
             Some(c) => Some(Box::new(VisualSystems::new(
                 c,
@@ -271,6 +293,7 @@ impl Navigator {
             vision_task: None,
             vision_out_t_us: None,
             h_agl: None,
+            fusion: Fusion::default(),
         })
     }
 
@@ -285,6 +308,7 @@ impl Navigator {
         self.ins = Some(ins);
         self.last = None;
         self.history.clear();
+        self.fusion.ins_restarted();
         self.stats.initialisations += 1;
         Ok(())
     }
@@ -379,6 +403,15 @@ impl Navigator {
         let mut nav = NavSolution::from_ins(sol, self.reset_counter);
         nav.vision = *self.vision();
         nav.vision_fix = self.vision_fix().copied();
+        if let Some(cfg) = &self.cfg.fusion {
+            if self.fusion.fuse(cfg, &mut nav, &self.history) {
+                self.reset_counter = self.reset_counter.wrapping_add(1);
+                self.stats.horizontal_source_changes += 1;
+                nav.reset_counter = self.reset_counter;
+            }
+            self.stats.fused_vision_fixes = self.fusion.fixes;
+            self.stats.vision_fixes_without_ins_pose = self.fusion.fixes_without_ins;
+        }
         Some(nav)
     }
 

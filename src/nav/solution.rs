@@ -11,8 +11,12 @@ use crate::math::wgs84::Geodetic;
 /// Which estimator the fused horizontal position comes from.
 #[derive(Debug, Clone, Copy, PartialEq, Eq)]
 pub enum PositionSource {
-    /// The inertial navigation (GNSS-aided until the loss, dead reckoning after it).
+    /// The inertial navigation (GNSS-aided until the loss, dead reckoning after it; with a
+    /// camera, dead reckoning from the last visual position once fixes stop).
     Ins,
+    /// The visual navigation's latest fix, carried to the solution's time by the INS
+    /// ([`super::fusion`]).
+    Vision,
 }
 
 /// State of the visual navigation.
