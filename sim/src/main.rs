@@ -102,6 +102,15 @@ enum Command {
         /// Save every N-th frame only (with --frames).
         #[arg(long, default_value_t = 1, value_parser = clap::value_parser!(u64).range(1..))]
         every: u64,
+        /// Fly on the daemon's fused solution: the IA-VNS's horizontal position after the GNSS
+        /// loss, restarts after a long loss or a gap in the frames (docs/FUSION.md); the
+        /// navigation outputs are the fused solution's.
+        #[arg(long, requires = "terrain")]
+        fused: bool,
+        /// No frames from mission time START for LENGTH seconds, `START:LENGTH` (a stalled
+        /// camera; repeatable).
+        #[arg(long, requires = "terrain", value_parser = parse_outage)]
+        frame_outage: Vec<(f64, f64)>,
     },
     /// Time one flight of physics, environment, sensors and control (no output files).
     Bench {
@@ -286,6 +295,19 @@ struct RenderArgs {
     out: PathBuf,
 }
 
+/// `START:LENGTH` in seconds, both finite, the length positive.
+fn parse_outage(s: &str) -> Result<(f64, f64), String> {
+    let (a, b) = s
+        .split_once(':')
+        .ok_or_else(|| format!("{s:?}: expected START:LENGTH (seconds)"))?;
+    let start: f64 = a.trim().parse().map_err(|e| format!("{a:?}: {e}"))?;
+    let length: f64 = b.trim().parse().map_err(|e| format!("{b:?}: {e}"))?;
+    if !(start.is_finite() && length.is_finite() && length > 0.0) {
+        return Err(format!("{s:?}: START finite, LENGTH positive"));
+    }
+    Ok((start, start + length))
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match &cli.command {
@@ -295,7 +317,19 @@ fn main() -> Result<()> {
             no_sensor_log,
             frames,
             every,
-        } => cmd::run::run(fly, out, *no_sensor_log, frames.as_ref(), *every),
+            fused,
+            frame_outage,
+        } => cmd::run::run(
+            fly,
+            out,
+            &cmd::run::RunOptions {
+                sensor_log: !*no_sensor_log,
+                frames: frames.as_ref(),
+                every: *every,
+                fused: *fused,
+                frame_outages_s: frame_outage,
+            },
+        ),
         Command::Bench { fly } => cmd::bench::bench(fly),
         Command::BenchVns { fly } => cmd::bench::bench_vns(fly),
         Command::Mc(args) => cmd::mc::mc(args),

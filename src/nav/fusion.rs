@@ -98,6 +98,9 @@ struct Anchor {
 pub(crate) struct Fusion {
     /// Distance flown since the visual system started, m (`None` while it has not).
     distance_m: Option<f64>,
+    /// The visual position's variance per axis at its start, m²: σ₀² at a start from the
+    /// GNSS-aided INS, the fused variance then at a restart from the fused pose.
+    start_variance_m2: Option<f64>,
     /// Time of the latest solution, µs.
     last_t_us: Option<u64>,
     anchor: Option<Anchor>,
@@ -115,7 +118,7 @@ fn started(state: VisionState) -> bool {
 
 /// `pos` moved by `ne_m` metres north and east (first order about `pos`: offsets are a few
 /// hundred metres at most).
-fn offset(pos: &Geodetic, ne_m: &Vector2<f64>) -> Geodetic {
+pub(super) fn offset(pos: &Geodetic, ne_m: &Vector2<f64>) -> Geodetic {
     let m = wgs84::radius_meridian_m(pos.lat_rad) + pos.h_m;
     let n = wgs84::radius_prime_vertical_m(pos.lat_rad) + pos.h_m;
     Geodetic {
@@ -148,7 +151,10 @@ impl Fusion {
             self.distance_m = Some(match self.distance_m {
                 Some(d) if speed_mps.is_finite() => d + speed_mps * dt_s,
                 Some(d) => d,
-                None => 0.0,
+                None => {
+                    self.start_variance_m2 = Some(self.variance_now_m2(cfg, nav));
+                    0.0
+                }
             });
         } else if self.distance_m.is_some() {
             // Re-initialising: a new map, a new scale.
@@ -183,12 +189,36 @@ impl Fusion {
             return;
         }
         self.fixes += 1;
+        let d = self.distance_m.unwrap_or(0.0);
+        let start_m2 = self
+            .start_variance_m2
+            .unwrap_or(cfg.sigma0_m * cfg.sigma0_m);
         self.anchor = Some(Anchor {
             fix_t_us: fix.t_us,
             offset_ne_m: d_ned.xy(),
-            variance_m2: cfg.vision_variance_m2(self.distance_m.unwrap_or(0.0)),
+            variance_m2: cfg.vision_variance_m2(d) - cfg.sigma0_m * cfg.sigma0_m + start_m2,
             ins_p_h_m2: nav.cov.position_m2.fixed_view::<2, 2>(0, 0).into_owned(),
         });
+    }
+
+    /// The horizontal offset a visual start takes from the INS ([`super::vision`]): the fused
+    /// position's while denied with a visual position, none otherwise.
+    pub(crate) fn start_offset_ne_m(&self, gnss_denied: bool) -> Option<Vector2<f64>> {
+        self.anchor.filter(|_| gnss_denied).map(|a| a.offset_ne_m)
+    }
+
+    /// The per-axis variance a visual system starting now takes: σ₀² from the GNSS-aided INS,
+    /// the fused position's (its larger axis) from the fused pose after the loss.
+    fn variance_now_m2(&self, cfg: &FusionConfig, nav: &NavSolution) -> f64 {
+        let sigma0_m2 = cfg.sigma0_m * cfg.sigma0_m;
+        match self.anchor {
+            Some(a) if nav.ins_status.gnss_denied => {
+                let p_h = nav.cov.position_m2.fixed_view::<2, 2>(0, 0).into_owned();
+                let grown = (p_h - a.ins_p_h_m2).diagonal().max().max(0.0);
+                (a.variance_m2 + grown).max(sigma0_m2)
+            }
+            _ => sigma0_m2,
+        }
     }
 
     fn apply(&self, cfg: &FusionConfig, nav: &mut NavSolution) -> PositionSource {

@@ -23,7 +23,9 @@ pub use policy::{StartKind, StartPolicy, StartRecord};
 pub use solution::{
     InsStatus, NavCovariance, NavSolution, PositionSource, VisionFix, VisionState, VisionStatus,
 };
-pub use vision::{ComparedVision, ComparedVisionError, VisionDone, VisionTask, VisualSystemView};
+pub use vision::{
+    ComparedVision, ComparedVisionError, VisionDone, VisionRestart, VisionTask, VisualSystemView,
+};
 
 use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
@@ -118,6 +120,11 @@ pub struct NavConfig {
     /// fix is only reported beside it.
     #[serde(default, skip_serializing_if = "Option::is_none")]
     pub fusion: Option<FusionConfig>,
+    /// Start a visual system over after a long loss or a gap in the frames, from the fused
+    /// pose (beyond the paper, whose VNS never restarts; docs/FUSION.md). Without it (the
+    /// paper's evaluation, the simulator) a lost system relocalises for ever.
+    #[serde(default, skip_serializing_if = "Option::is_none")]
+    pub vision_restart: Option<VisionRestart>,
 }
 
 /// Flat ground at a known height ([`NavConfig::flat_terrain`]).
@@ -148,6 +155,7 @@ impl NavConfig {
             vision_deferred: false,
             flat_terrain: None,
             fusion: None,
+            vision_restart: None,
         }
     }
 }
@@ -186,6 +194,8 @@ pub struct NavigatorStats {
     pub vision_fixes_without_ins_pose: u64,
     /// Changes of the fused horizontal source (each moves the reset counter).
     pub horizontal_source_changes: u64,
+    /// Restarts of the navigating visual system ([`NavConfig::vision_restart`]).
+    pub vision_restarts: u64,
 }
 
 /// The navigation core.
@@ -269,6 +279,7 @@ impl Navigator {
                 c,
                 &cfg.vision,
                 &cfg.compared_vision,
+                cfg.vision_restart,
             )?)),
             None => None,
         };
@@ -425,7 +436,9 @@ impl Navigator {
             return;
         };
         let h_agl = height_at_frame(frame.t_us, self.h_agl, self.cfg.flat_terrain, &self.history);
-        let job = visual.job(frame, &self.history, h_agl.as_ref());
+        let denied = self.ins.as_ref().is_some_and(Ins::gnss_denied);
+        let offset = self.fusion.start_offset_ne_m(denied);
+        let job = visual.job(frame, &self.history, h_agl.as_ref(), offset.as_ref());
         if self.cfg.vision_deferred {
             if let Some(systems) = self.visual.take() {
                 self.vision_out_t_us = Some(frame.t_us);
@@ -437,6 +450,7 @@ impl Navigator {
             }
             self.vision_status = *visual.status();
             self.vision_fix = visual.fix().copied();
+            self.stats.vision_restarts = visual.restarts();
         }
     }
 
@@ -462,6 +476,7 @@ impl Navigator {
         let t_us = done.frame_t_us();
         self.vision_status = *done.systems.status();
         self.vision_fix = done.systems.fix().copied();
+        self.stats.vision_restarts = done.systems.restarts();
         self.visual = Some(done.systems);
         Some(SensorEvent::VisionApplied(VisionApplied { t_us }))
     }

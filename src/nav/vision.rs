@@ -8,7 +8,7 @@
 //! [`NavConfig::vision`]: super::NavConfig::vision
 //! [`NavConfig::compared_vision`]: super::NavConfig::compared_vision
 
-use nalgebra::{Isometry3, Vector3};
+use nalgebra::{Isometry3, Vector2, Vector3};
 
 use super::history::PoseHistory;
 use super::solution::{VisionFix, VisionState, VisionStatus};
@@ -76,6 +76,34 @@ struct VisualSystem {
     vns: Vns,
     status: VisionStatus,
     fix: Option<VisionFix>,
+    /// Exposure of the previous frame, µs.
+    last_frame_us: Option<u64>,
+    /// Exposure of the first frame of the current loss (relocalising), µs.
+    lost_since_us: Option<u64>,
+    /// Restarts made ([`VisionRestart`]).
+    restarts: u64,
+}
+
+/// When the navigator starts a visual system over (beyond the paper, which never restarts;
+/// [`super::NavConfig::vision_restart`]). The restart starts from the fused pose
+/// (docs/FUSION.md "Losing vision and getting it back").
+#[derive(Debug, Clone, Copy, PartialEq, serde::Serialize, serde::Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct VisionRestart {
+    /// Relocalising for longer than this: start over, µs.
+    pub after_lost_us: u64,
+    /// A gap between two frames longer than this (a stalled stream, a camera back): start over
+    /// rather than relocalise from a pose that far behind, µs.
+    pub after_gap_us: u64,
+}
+
+impl Default for VisionRestart {
+    fn default() -> Self {
+        Self {
+            after_lost_us: 3_000_000,
+            after_gap_us: 1_000_000,
+        }
+    }
 }
 
 impl VisualSystem {
@@ -87,7 +115,31 @@ impl VisualSystem {
                 ..VisionStatus::INACTIVE
             },
             fix: None,
+            last_frame_us: None,
+            lost_since_us: None,
+            restarts: 0,
         })
+    }
+
+    /// Start over if the restart rule says so before `t_us`'s frame.
+    fn restart_if_due(&mut self, t_us: u64, rule: &VisionRestart) {
+        let started = matches!(
+            self.vns.state(),
+            VnsState::Tracking | VnsState::Relocalising
+        );
+        let gap = self
+            .last_frame_us
+            .is_some_and(|t| t_us.saturating_sub(t) > rule.after_gap_us);
+        let lost = self
+            .lost_since_us
+            .is_some_and(|t| t_us.saturating_sub(t) > rule.after_lost_us);
+        if started && (gap || lost) {
+            self.vns.restart();
+            self.restarts += 1;
+            self.lost_since_us = None;
+            self.status.state = VisionState::WaitingForStart;
+            self.fix = None;
+        }
     }
 
     /// Run on one frame; `Err` when the frame was refused (size, buffer, time order).
@@ -97,14 +149,20 @@ impl VisualSystem {
         start: Option<&VnsStart>,
         ins: Option<&InertialFrame>,
         zeta_bc: &Isometry3<f64>,
+        restart: Option<&VisionRestart>,
     ) -> Result<(), VnsError> {
+        if let Some(rule) = restart {
+            self.restart_if_due(frame.t_us, rule);
+        }
         let waiting = matches!(
             self.vns.state(),
             VnsState::WaitingForStart | VnsState::Initialising
         );
         let start = start.filter(|_| waiting);
         let ins = ins.filter(|_| self.vns.config().aiding.needs_ins());
-        match self.vns.process(frame, start, ins)? {
+        let out = self.vns.process(frame, start, ins)?;
+        self.last_frame_us = Some(frame.t_us);
+        match out {
             Some(out) => {
                 self.status = vision_status(&out);
                 self.fix = (out.state == VnsState::Tracking).then(|| body_fix(&out, zeta_bc));
@@ -114,6 +172,10 @@ impl VisualSystem {
                 self.fix = None;
             }
         }
+        self.lost_since_us = match self.vns.state() {
+            VnsState::Relocalising => self.lost_since_us.or(Some(frame.t_us)),
+            _ => None,
+        };
         Ok(())
     }
 
@@ -208,6 +270,7 @@ impl VisionDone {
 pub(super) struct VisualSystems {
     /// The estimated camera mounting.
     zeta_bc: Isometry3<f64>,
+    restart: Option<VisionRestart>,
     navigating: VisualSystem,
     compared: Vec<(String, VisualSystem)>,
 }
@@ -217,6 +280,7 @@ impl VisualSystems {
         camera: &NavCamera,
         vision: &VnsConfig,
         compared: &[ComparedVision],
+        restart: Option<VisionRestart>,
     ) -> Result<Self, NavError> {
         let cam = Camera::from_config(&camera.intrinsics)?;
         // The CG is taken at the reference point: its offset (decimetres) is far below the
@@ -228,24 +292,28 @@ impl VisualSystems {
             .collect::<Result<_, NavError>>()?;
         Ok(Self {
             zeta_bc,
+            restart,
             navigating: VisualSystem::new(cam, vision)?,
             compared,
         })
     }
 
     /// What the systems need of the navigator for `frame`: the INS at its time, read now from
-    /// the pose history (cheap; the systems may run later, on another thread).
+    /// the pose history (cheap; the systems may run later, on another thread). A start is
+    /// moved by `start_offset_ne_m` (the fused position's offset from the INS, after the
+    /// GNSS loss).
     pub(super) fn job(
         &self,
         frame: &Frame,
         history: &PoseHistory,
         h_agl: Option<&HeightAboveTerrain>,
+        start_offset_ne_m: Option<&Vector2<f64>>,
     ) -> VisionJob {
         // Both are read whether or not a system needs them: each system takes what its state
         // and settings call for (`VisualSystem::process`), so the results do not change.
         VisionJob {
             frame: frame.clone(),
-            start: start_at(frame.t_us, history, h_agl, &self.zeta_bc),
+            start: start_at(frame.t_us, history, h_agl, &self.zeta_bc, start_offset_ne_m),
             ins: inertial_frame(frame.t_us, history, &self.zeta_bc),
         }
     }
@@ -255,11 +323,13 @@ impl VisualSystems {
     pub(super) fn run(&mut self, job: &VisionJob) -> Result<(), VnsError> {
         let zeta_bc = self.zeta_bc;
         let (start, ins) = (job.start.as_ref(), job.ins.as_ref());
+        let restart = self.restart.as_ref();
         for (_, system) in &mut self.compared {
             // A refused frame is counted once, by the navigating system below.
-            let _ = system.process(&job.frame, start, ins, &zeta_bc);
+            let _ = system.process(&job.frame, start, ins, &zeta_bc, restart);
         }
-        self.navigating.process(&job.frame, start, ins, &zeta_bc)
+        self.navigating
+            .process(&job.frame, start, ins, &zeta_bc, restart)
     }
 
     /// The navigating system's state and latest frame.
@@ -276,6 +346,11 @@ impl VisualSystems {
     #[cfg(test)]
     pub(super) fn config(&self) -> &VnsConfig {
         self.navigating.vns.config()
+    }
+
+    /// The navigating system's restarts ([`VisionRestart`]).
+    pub(super) fn restarts(&self) -> u64 {
+        self.navigating.restarts
     }
 
     /// The navigating system's counters.
@@ -319,16 +394,20 @@ fn inertial_frame(
     })
 }
 
-/// `x̊₀` at `t_us`: the INS camera pose and the height over the terrain, when both are known
-/// then.
+/// `x̊₀` at `t_us`: the INS camera pose (moved horizontally by `offset_ne_m`: the fused pose)
+/// and the height over the terrain, when both are known then.
 fn start_at(
     t_us: u64,
     history: &PoseHistory,
     h_agl: Option<&HeightAboveTerrain>,
     zeta_bc: &Isometry3<f64>,
+    offset_ne_m: Option<&Vector2<f64>>,
 ) -> Option<VnsStart> {
     let h = h_agl.filter(|h| t_us.abs_diff(h.t_us) <= MAX_HEIGHT_AGE_US)?;
-    let pose = history.at(t_us)?;
+    let mut pose = history.at(t_us)?;
+    if let Some(ne_m) = offset_ne_m {
+        pose.pos = super::fusion::offset(&pose.pos, ne_m);
+    }
     let q_eb = wgs84::q_en(pose.pos.lat_rad, pose.pos.lon_rad) * pose.q_nb;
     let zeta_eb = Isometry3::from_parts(
         nalgebra::Translation3::from(wgs84::geodetic_to_ecef(&pose.pos)),

@@ -82,14 +82,27 @@ impl<O: ianav_sim::flight::FlightObserver> ianav_sim::flight::FlightObserver for
     }
 }
 
-pub(crate) fn run(
-    fly: &FlyArgs,
-    out: &std::path::Path,
-    no_sensor_log: bool,
-    frames: Option<&PathBuf>,
-    every: u64,
-) -> Result<()> {
-    let setup = setup(&fly.setup)?;
+/// What `run` does beside flying.
+pub(crate) struct RunOptions<'a> {
+    /// Write the sensor sample log.
+    pub sensor_log: bool,
+    /// Save the frames as PNG files here.
+    pub frames: Option<&'a PathBuf>,
+    /// Save every N-th frame only.
+    pub every: u64,
+    /// Fly on the daemon's fused solution ([`ianav_sim::flight::FlightSetup::fused`]).
+    pub fused: bool,
+    /// Mission-time windows `[start, end)` without frames, s.
+    pub frame_outages_s: &'a [(f64, f64)],
+}
+
+pub(crate) fn run(fly: &FlyArgs, out: &std::path::Path, options: &RunOptions) -> Result<()> {
+    let (no_sensor_log, frames, every) = (!options.sensor_log, options.frames, options.every);
+    let mut setup = setup(&fly.setup)?;
+    setup.fused = options.fused;
+    if let Some(camera) = setup.camera.as_mut() {
+        camera.outages_s = options.frame_outages_s.to_vec();
+    }
     let mut flight = Flight::new(&setup, fly.seed)?;
     let mut writer = RunWriter::new(out, !no_sensor_log)?;
     if let Some(nav) = flight.navigator() {

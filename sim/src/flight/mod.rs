@@ -55,6 +55,8 @@ struct FlightCamera {
     h_agl_error_m: f64,
     /// Its σ, m.
     h_agl_sigma_m: f64,
+    /// Mission-time windows without frames, s.
+    outages_s: Vec<(f64, f64)>,
 }
 
 /// A flight in progress.
@@ -331,9 +333,14 @@ impl Flight {
         {
             self.sample_sensors(&position, observer)?;
         }
+        let mission_s = self.mission_time_s();
         if let Some(cam) = &self.camera
             && k.is_multiple_of(cam.steps_per_frame)
             && self.t_us() >= self.warmup_us
+            && !cam
+                .outages_s
+                .iter()
+                .any(|(a, b)| (*a..*b).contains(&mission_s))
         {
             // The height over the terrain (with its drawn error) comes with every frame: the
             // visual navigation takes it at the image it starts from. Frames go before the

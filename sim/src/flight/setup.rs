@@ -156,6 +156,9 @@ pub struct CameraSetup {
     /// The flight's own navigator runs the visual navigation on the frames (off for the SITL
     /// vehicle, whose frames are the daemon's to navigate on).
     pub vision_navigation: bool,
+    /// Mission-time windows `[start, end)`, s, without frames (a stalled camera): nothing is
+    /// rendered or sent in them.
+    pub outages_s: Vec<(f64, f64)>,
 }
 
 impl CameraSetup {
@@ -169,6 +172,7 @@ impl CameraSetup {
             options: RenderOptions::default(),
             h_agl_sigma_m: H_AGL_SIGMA_M,
             vision_navigation: true,
+            outages_s: Vec::new(),
         }
     }
 }
@@ -200,6 +204,10 @@ pub struct FlightSetup {
     pub vision_systems: Vec<VisionSystem>,
     /// Camera and terrain (`None`: no frames, the default).
     pub camera: Option<CameraSetup>,
+    /// The navigator publishes the daemon's fused solution (the visual horizontal position
+    /// after the GNSS loss, restarts after a loss or a gap; docs/FUSION.md) and guidance flies
+    /// on it. Off: the paper's evaluation (the INS, each visual system scored beside it).
+    pub fused: bool,
 }
 
 impl FlightSetup {
@@ -237,6 +245,7 @@ impl FlightSetup {
             vision: VnsConfig::default(),
             vision_systems: DEFAULT_VISION_SYSTEMS.to_vec(),
             camera: None,
+            fused: false,
         })
     }
 }
@@ -376,6 +385,7 @@ impl Flight {
                     h_agl_error_m: c.h_agl_sigma_m
                         * rng::normal(&mut rng::stream(seed, "height_over_terrain_error")),
                     h_agl_sigma_m: c.h_agl_sigma_m,
+                    outages_s: c.outages_s.clone(),
                 })
             }
         };
@@ -400,6 +410,10 @@ impl Flight {
                         intrinsics: c.camera,
                         mounting: fc.mounting.estimate,
                     });
+                if setup.fused {
+                    cfg.fusion = Some(ianav::nav::fusion::FusionConfig::default());
+                    cfg.vision_restart = Some(ianav::nav::VisionRestart::default());
+                }
                 Some(Navigator::new(&cfg)?)
             }
         };

@@ -491,6 +491,27 @@ impl Vns {
         })
     }
 
+    /// Start over (beyond the paper: the navigator's restart after a long loss or a gap in
+    /// the frames, docs/FUSION.md): the map, the seeds, the previous frame and the IA-VNS's
+    /// state go; the next frame with a start estimate `x̊₀` initialises again. The counters
+    /// are kept.
+    pub fn restart(&mut self) {
+        self.state = VnsState::WaitingForStart;
+        self.map = Map::new();
+        self.seeds.clear();
+        self.last = None;
+        self.init = None;
+        self.last_motion = None;
+        self.last_good = None;
+        if let Some(a) = self.aiding.as_mut() {
+            // The settings were checked when the VNS was built: a new state cannot fail.
+            if let Ok(mut fresh) = AidingState::new(&self.cfg.aiding) {
+                fresh.counters = a.counters;
+                *a = fresh;
+            }
+        }
+    }
+
     /// The state.
     pub fn state(&self) -> VnsState {
         self.state

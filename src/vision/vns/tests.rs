@@ -5,7 +5,7 @@
 use super::*;
 use crate::math::wgs84::{Geodetic, geodetic_to_ecef, q_en};
 use crate::vision::test_scene::{Ground, camera, nadir_pose};
-use nalgebra::Translation3;
+use nalgebra::{Translation3, Vector3};
 
 /// A VNS on a 384 × 512 camera (the paper's focal length) with 32-px cells: 192 cells as
 /// on the full camera.
@@ -117,6 +117,44 @@ fn tracks_a_straight_flight_over_a_textured_plane() {
     eprintln!(
         "first tracked frame {first_tracked:?}, worst {worst_m:.2} m, {worst_deg:.4}°, {c:?}"
     );
+}
+
+/// A restart drops the map and the state, keeps the counters, and the next frames initialise
+/// again from the start estimate they are given (here one 40 m off the truth: the new map is
+/// anchored there, so the pose follows the truth shifted by 40 m).
+#[test]
+fn a_restart_starts_over_from_the_next_start_estimate() {
+    let (cam, mut vns) = small_vns();
+    let zeta_ew = zeta_ew();
+    let run = |vns: &mut Vns, ks: std::ops::Range<u64>, shift_m: f64| {
+        let mut last = None;
+        for k in ks {
+            let pose_w = pose_at(k);
+            let frame = GROUND_5.frame(&cam, &pose_w, 1_000_000 + k * 100_000);
+            let mut start = start_at(&zeta_ew, &pose_w);
+            start.zeta_ec.translation.vector += zeta_ew.rotation * Vector3::new(shift_m, 0.0, 0.0);
+            if let Some(out) = vns.process(&frame, Some(&start), None).unwrap() {
+                last = Some((k, out));
+            }
+        }
+        last
+    };
+    let (_, out) = run(&mut vns, 0..60, 0.0).expect("tracks");
+    assert_eq!(out.state, VnsState::Tracking);
+    let before = *vns.counters();
+    vns.restart();
+    assert_eq!(vns.state(), VnsState::WaitingForStart);
+    assert_eq!(vns.map().n_keyframes(), 0);
+    assert_eq!(*vns.counters(), before);
+    let (k, out) = run(&mut vns, 60..130, 40.0).expect("tracks again");
+    assert_eq!(out.state, VnsState::Tracking);
+    assert_eq!(vns.counters().initialisations, before.initialisations + 1);
+    // The new map's frame is the shifted start's: 40 m north of the truth, within the
+    // initialisation's metre and 1 % of the 200 m flown since.
+    let truth = zeta_ew * pose_at(k);
+    let d =
+        zeta_ew.rotation.inverse() * (out.zeta_ec.translation.vector - truth.translation.vector);
+    assert!((d - Vector3::new(40.0, 0.0, 0.0)).norm() < 4.0, "{d}");
 }
 
 /// A black frame loses the track (counted); the next real frame relocalises from the
