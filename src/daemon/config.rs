@@ -8,6 +8,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use crate::ins::{InsConfig, InsConfigError};
+use crate::vision::vns::{AidingConfig, VnsConfig};
 
 mod camera;
 
@@ -375,6 +376,11 @@ pub struct NavigationConfig {
     /// Epoch of the magnetic model, decimal year; 0 = from the system clock at start.
     #[serde(default)]
     pub mag_decimal_year: f64,
+    /// Path of the visual navigation's settings (`config/vision.toml` format), relative to
+    /// this file's directory. Empty: the inline `[vision]` table, or the defaults (for the
+    /// paper's 768 × 1024 camera: scale the pixel settings for another size, docs/CAMERA.md).
+    #[serde(default)]
+    pub vision_config: String,
     /// With a camera: after the GNSS loss, publish the IA-VNS's horizontal position (carried
     /// between frames by the INS) instead of the INS's (docs/FUSION.md). Off: the IA-VNS runs
     /// and is logged, the INS is published.
@@ -383,6 +389,10 @@ pub struct NavigationConfig {
     /// `[navigation.vision_error]`: the visual position's error model (docs/FUSION.md).
     #[serde(default)]
     pub vision_error: crate::nav::fusion::FusionConfig,
+    /// `[navigation.vision_restart]`: when the visual navigation starts over from the fused
+    /// pose (docs/FUSION.md).
+    #[serde(default)]
+    pub vision_restart: crate::nav::VisionRestart,
 }
 
 fn yes() -> bool {
@@ -394,8 +404,10 @@ impl Default for NavigationConfig {
         Self {
             ins_config: String::new(),
             mag_decimal_year: 0.0,
+            vision_config: String::new(),
             vision_position: true,
             vision_error: crate::nav::fusion::FusionConfig::default(),
+            vision_restart: crate::nav::VisionRestart::default(),
         }
     }
 }
@@ -444,7 +456,47 @@ struct RawConfig {
     #[serde(default)]
     ins: Option<toml::Table>,
     #[serde(default)]
+    vision: Option<toml::Table>,
+    #[serde(default)]
     logging: LoggingConfig,
+}
+
+/// A settings section given by a file (`file`, relative to `base_dir`), an inline table, or
+/// both (the table's keys override the file's): the merged table and where it came from;
+/// `None` when neither is given.
+fn section(
+    name: &str,
+    file: &str,
+    file_key: &str,
+    inline: Option<&toml::Table>,
+    base_dir: Option<&Path>,
+) -> Result<Option<(toml::Table, String)>, ConfigError> {
+    if file.is_empty() {
+        return Ok(inline.map(|t| (t.clone(), format!("[{name}]"))));
+    }
+    let p = Path::new(file);
+    let p = match base_dir {
+        Some(dir) if p.is_relative() => dir.join(p),
+        _ => p.to_owned(),
+    };
+    let text = std::fs::read_to_string(&p).map_err(|error| ConfigError::Read {
+        path: p.clone(),
+        error,
+    })?;
+    let mut context = format!("{file_key} ({})", p.display());
+    let mut table: toml::Table =
+        toml::from_str(&text).map_err(|e| invalid(&context, "[file]", e.to_string()))?;
+    if let Some(over) = inline {
+        merge_tables(&mut table, over);
+        context.push_str(&format!(" with [{name}] overrides"));
+    }
+    Ok(Some((table, context)))
+}
+
+/// A table written back as TOML text (for the parsers that read text).
+fn retoml(name: &str, table: &toml::Table) -> Result<String, ConfigError> {
+    toml::to_string(table)
+        .map_err(|e| invalid(name, "[table]", format!("cannot re-serialise: {e}")))
 }
 
 /// A validated daemon configuration.
@@ -462,6 +514,10 @@ pub struct DaemonConfig {
     pub navigation: NavigationConfig,
     /// The INS configuration (from `navigation.ins_config`, `[ins]`, or the defaults).
     pub ins: InsConfig,
+    /// The visual navigation's settings (from `navigation.vision_config`, `[vision]`, or the
+    /// defaults for the paper's 768 × 1024 camera), the paper's IA-VNS unless they set
+    /// `aiding`.
+    pub vision: VnsConfig,
     /// `[logging]`.
     pub logging: LoggingConfig,
     /// The decoded signing key.
@@ -498,38 +554,43 @@ impl DaemonConfig {
     /// and `camera.calibration_file` (without it they are taken from the working directory).
     pub fn from_toml_str(text: &str, base_dir: Option<&Path>) -> Result<Self, ConfigError> {
         let raw: RawConfig = toml::from_str(text).map_err(ConfigError::Toml)?;
-        let ins_error = |context: String| move |error| ConfigError::Ins { context, error };
-        let ins = if raw.navigation.ins_config.is_empty() {
-            match &raw.ins {
-                Some(table) => {
-                    let text = toml::to_string(table).map_err(|e| {
-                        invalid("ins", "[table]", format!("cannot re-serialise: {e}"))
-                    })?;
-                    InsConfig::from_toml_str(&text).map_err(ins_error("[ins]".to_owned()))?
+        let ins = match section(
+            "ins",
+            &raw.navigation.ins_config,
+            "navigation.ins_config",
+            raw.ins.as_ref(),
+            base_dir,
+        )? {
+            Some((table, context)) => {
+                let text = retoml("ins", &table)?;
+                InsConfig::from_toml_str(&text)
+                    .map_err(|error| ConfigError::Ins { context, error })?
+            }
+            None => InsConfig::default(),
+        };
+        let vision = match section(
+            "vision",
+            &raw.navigation.vision_config,
+            "navigation.vision_config",
+            raw.vision.as_ref(),
+            base_dir,
+        )? {
+            Some((table, context)) => {
+                let mut vision: VnsConfig = toml::from_str(&retoml("vision", &table)?)
+                    .map_err(|e| invalid(&context, "[table]", e.to_string()))?;
+                // The daemon runs the paper's IA-VNS unless the settings say otherwise.
+                if !table.contains_key("aiding") {
+                    vision.aiding = AidingConfig::paper();
                 }
-                None => InsConfig::default(),
+                vision
+                    .validate()
+                    .map_err(|e| invalid(&context, "[table]", e.to_string()))?;
+                vision
             }
-        } else {
-            let p = Path::new(&raw.navigation.ins_config);
-            let p = match base_dir {
-                Some(dir) if p.is_relative() => dir.join(p),
-                _ => p.to_owned(),
-            };
-            let mut text = std::fs::read_to_string(&p).map_err(|error| ConfigError::Read {
-                path: p.clone(),
-                error,
-            })?;
-            let mut context = format!("navigation.ins_config ({})", p.display());
-            // An [ins] table next to the file overrides the file's keys.
-            if let Some(over) = &raw.ins {
-                let mut base: toml::Table = toml::from_str(&text)
-                    .map_err(|e| invalid(&context, "[file]", e.to_string()))?;
-                merge_tables(&mut base, over);
-                text = toml::to_string(&base)
-                    .map_err(|e| invalid("ins", "[table]", format!("cannot re-serialise: {e}")))?;
-                context.push_str(" with [ins] overrides");
-            }
-            InsConfig::from_toml_str(&text).map_err(ins_error(context))?
+            None => VnsConfig {
+                aiding: AidingConfig::paper(),
+                ..VnsConfig::default()
+            },
         };
         let signing_key = if raw.mavlink.signing_key.is_empty() {
             None
@@ -551,6 +612,7 @@ impl DaemonConfig {
             camera,
             navigation: raw.navigation,
             ins,
+            vision,
             logging: raw.logging,
             signing_key,
             record: None,
@@ -896,5 +958,38 @@ mod tests {
             "{MINIMAL}[navigation]\nins_config = \"ins.toml\"\n[ins.attitude]\nq_nonsense = 1.0\n"
         ));
         assert!(e.contains("with [ins] overrides"), "{e}");
+    }
+
+    /// The visual navigation's settings: the paper's IA-VNS on the defaults; an inline table
+    /// (e.g. the pixel settings of a smaller camera) keeps the IA-VNS unless it sets `aiding`;
+    /// a file is read relative to the configuration; unknown keys are refused by their source.
+    #[test]
+    fn vision_settings_from_the_defaults_inline_or_a_file() {
+        let paper = VnsConfig {
+            aiding: AidingConfig::paper(),
+            ..VnsConfig::default()
+        };
+        assert_eq!(parse(MINIMAL).unwrap().vision, paper);
+        let small = parse(&format!(
+            "{MINIMAL}[vision]\ninit_cell_size_px = 8\n[vision.detector]\ncell_size_px = 16\n"
+        ))
+        .unwrap();
+        assert_eq!(small.vision.detector.cell_size_px, 16);
+        assert_eq!(small.vision.init_cell_size_px, 8);
+        assert_eq!(small.vision.aiding, AidingConfig::paper());
+        let file = parse(&format!(
+            "{MINIMAL}[navigation]\nvision_config = \"vision.toml\"\n"
+        ))
+        .unwrap();
+        let text = std::fs::read_to_string(
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("config/vision.toml"),
+        )
+        .unwrap();
+        let shipped: VnsConfig = toml::from_str(&text).unwrap();
+        assert_eq!(file.vision, shipped, "the file's own aiding settings");
+        let e = error(&format!("{MINIMAL}[vision]\nnonsense = 1\n"));
+        assert!(e.starts_with("[vision]"), "{e}");
+        let e = error(&format!("{MINIMAL}[vision.detector]\ncell_size_px = 0\n"));
+        assert!(e.contains("cell_size_px"), "{e}");
     }
 }

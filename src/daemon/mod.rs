@@ -109,7 +109,7 @@ pub fn nav_config(cfg: &DaemonConfig, mag_decimal_year: f64) -> crate::nav::NavC
     nav.start.restart_airspeed_mps = Some(cfg.input.start_airspeed_mps);
     if let Some(camera) = cfg.camera.nav_camera() {
         nav.camera = Some(camera);
-        nav.vision.aiding = crate::vision::vns::AidingConfig::paper();
+        nav.vision = cfg.vision.clone();
         nav.vision_deferred = true;
         nav.flat_terrain = cfg
             .camera
@@ -122,6 +122,7 @@ pub fn nav_config(cfg: &DaemonConfig, mag_decimal_year: f64) -> crate::nav::NavC
             .navigation
             .vision_position
             .then_some(cfg.navigation.vision_error);
+        nav.vision_restart = Some(cfg.navigation.vision_restart);
     }
     nav
 }
@@ -387,6 +388,10 @@ mod tests {
         let parse = |extra: &str| DaemonConfig::from_toml_str(&toml(extra), None);
         let on = nav_config(&parse("").unwrap(), 2026.5);
         assert_eq!(on.fusion, Some(crate::nav::fusion::FusionConfig::default()));
+        assert_eq!(
+            on.vision_restart,
+            Some(crate::nav::VisionRestart::default())
+        );
         let tuned = nav_config(
             &parse("[navigation.vision_error]\nk_per_m = 0.01").unwrap(),
             2026.5,
