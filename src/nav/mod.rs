@@ -196,6 +196,9 @@ pub struct NavigatorStats {
     pub horizontal_source_changes: u64,
     /// Restarts of the navigating visual system ([`NavConfig::vision_restart`]).
     pub vision_restarts: u64,
+    /// Frames that waited for the INS to reach their exposure and were replaced by a newer
+    /// one before it did (the IMU stalled), dropped.
+    pub frames_replaced_waiting: u64,
 }
 
 /// The navigation core.
@@ -232,6 +235,8 @@ pub struct Navigator {
     /// The latest height over the terrain.
     h_agl: Option<HeightAboveTerrain>,
     fusion: Fusion,
+    /// A frame newer than the newest INS solution, until one reaches its exposure.
+    waiting_frame: Option<Frame>,
 }
 
 /// The height over the terrain at a frame: the measured one if fresh, else the INS's height
@@ -305,6 +310,7 @@ impl Navigator {
             vision_out_t_us: None,
             h_agl: None,
             fusion: Fusion::default(),
+            waiting_frame: None,
         })
     }
 
@@ -360,7 +366,14 @@ impl Navigator {
                     return None;
                 }
                 self.stats.frames += 1;
-                self.navigate_frame(f);
+                // The frame needs the INS pose at its exposure: until a solution at or after
+                // it exists (a driver may push a frame just before the IMU sample of its own
+                // instant), it waits.
+                if self.history.newest_t_us().is_some_and(|t| t >= f.t_us) {
+                    self.navigate_frame(f);
+                } else if self.waiting_frame.replace(f.clone()).is_some() {
+                    self.stats.frames_replaced_waiting += 1;
+                }
             }
             SensorEvent::VisionApplied(_) => {
                 // A marker reaches here only without its result (a replay driver hands results
@@ -411,6 +424,9 @@ impl Navigator {
             v_ned_mps: sol.v_ned_mps,
             q_nb: sol.q_nb,
         });
+        if let Some(frame) = self.waiting_frame.take_if(|f| f.t_us <= sol.t_us) {
+            self.navigate_frame(&frame);
+        }
         let mut nav = NavSolution::from_ins(sol, self.reset_counter);
         nav.vision = *self.vision();
         nav.vision_fix = self.vision_fix().copied();

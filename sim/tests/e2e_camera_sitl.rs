@@ -1,0 +1,244 @@
+//! End to end with the camera (docs/FUSION.md, docs/SITL.md "Camera frames"): the SITL
+//! vehicle renders its down-looking camera over MX (the authors' 768 × 1024: at half of it
+//! MX's fields give too few corners to start) and streams the frames; the `ianav` daemon (in-process) navigates on them with the IA-VNS,
+//! publishes the fused position, and after the GNSS loss the vehicle flies on it. A shortened
+//! scenario #2 (GNSS lost at 20 s, 60 s of mission) at 2× real time over loopback TCP.
+#![expect(
+    clippy::unwrap_used,
+    reason = "tests: a failed unwrap is a failed test"
+)]
+
+use std::time::Duration;
+
+use ianav::daemon::config::DaemonConfig;
+use ianav::daemon::{self};
+use ianav::nav::fusion::FusionConfig;
+use ianav_sim::flight::{CameraSetup, FlightSetup};
+use ianav_sim::sitl::{self, Autopilot, FramesListen, SitlOptions, VehicleConfig};
+use ianav_sim::terrain::{Terrain, Zone};
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::TcpListener;
+
+/// Mission flown after the 50 s warm-up, s, and the GNSS loss in it, s.
+const MISSION_S: f64 = 60.0;
+const LOSS_S: f64 = 20.0;
+/// Simulated seconds per wall second.
+const SPEED: f64 = 2.0;
+/// Reduction of the authors' 768 × 1024 camera (1: none; the vision's pixel settings are
+/// divided by it).
+const SCALE: u32 = 1;
+
+fn setup() -> FlightSetup {
+    let mut s = FlightSetup::builtin(2).unwrap();
+    s.scenario.duration_s = MISSION_S;
+    s.scenario.gnss_loss_s = LOSS_S;
+    let zone = Zone::Mix;
+    let start = zone.start();
+    s.scenario.start.lat_deg = start.lat_deg;
+    s.scenario.start.lon_deg = start.lon_deg;
+    let mut camera = CameraSetup::new(std::sync::Arc::new(Terrain::new(zone, 0)));
+    camera.camera.width_px /= SCALE;
+    camera.camera.height_px /= SCALE;
+    camera.camera.pixel_pitch_um *= f64::from(SCALE);
+    s.camera = Some(camera);
+    s
+}
+
+/// The daemon's configuration: the vehicle's camera and the ground's height at the start
+/// (the daemon's flat terrain), the pixel settings of the vision scaled with the image.
+fn daemon_toml(setup: &FlightSetup, vehicle: &str, frames: &str) -> String {
+    let cam = &setup.camera.as_ref().unwrap().camera;
+    let ground_m = Zone::Mix.start().ground_m;
+    let v = ianav::vision::vns::VnsConfig::default();
+    // The vehicle's ATTITUDE is its own INS: white errors, nothing slow to estimate (as in
+    // e2e_daemon_sitl.rs).
+    let mut ins = ianav::ins::InsConfig::default();
+    ins.alignment.ref_error_sigma_deg = [0.0; 3];
+    let alignment = toml::to_string(&ins.alignment).unwrap();
+    format!(
+        "[mavlink]\nconnection = \"tcpout:{vehicle}\"\nclock = \"autopilot\"\n\
+         link_timeout_s = 3.0\n\
+         [input]\nimu_rate_hz = 100.0\nair_rate_hz = 100.0\naoa_ssa = \"vanes\"\n\
+         [output]\nmode = \"odometry\"\nrate_hz = 30.0\n\
+         [camera]\nsource = \"frame_stream\"\naddress = \"{frames}\"\n\
+         width_px = {}\nheight_px = {}\nfocal_length_mm = {}\npixel_pitch_um = {}\n\
+         terrain_height_m = {ground_m}\n\
+         [navigation]\nmag_decimal_year = {}\n\
+         [vision]\ninit_cell_size_px = {}\ninit_min_disparity_px = {}\n\
+         [vision.detector]\ncell_size_px = {}\n\
+         [logging]\ncounters_period_s = 0.0\n\
+         [ins.alignment]\n{alignment}",
+        cam.width_px,
+        cam.height_px,
+        cam.focal_length_mm,
+        cam.pixel_pitch_um,
+        setup.scenario.magnetic_decimal_year,
+        v.init_cell_size_px / SCALE,
+        v.init_min_disparity_px / f64::from(SCALE),
+        v.detector.cell_size_px / SCALE,
+    )
+}
+
+/// The horizontal error of the published position after the loss stays within three times
+/// the fused model's DRMS (σ₀ and the scale term over the distance flown since the start,
+/// at most 110 s × 35 m/s; the INS's own growth between fixes is centimetres), and the vehicle
+/// flies on it.
+#[tokio::test(flavor = "multi_thread", worker_threads = 2)]
+async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_its_position() {
+    let setup = setup();
+    let daemon_side = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let vehicle_side = TcpListener::bind("127.0.0.1:0").await.unwrap();
+    let frames = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+    let frames_addr = frames.local_addr().unwrap().to_string();
+    let dir = std::env::temp_dir().join(format!("ianav_e2e_camera_{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let mut cfg = DaemonConfig::from_toml_str(
+        &daemon_toml(
+            &setup,
+            &daemon_side.local_addr().unwrap().to_string(),
+            &frames_addr,
+        ),
+        None,
+    )
+    .unwrap();
+    let recording = dir.join("daemon.bin");
+    cfg.record = Some(recording.clone());
+    let (htx, hrx) = tokio::sync::oneshot::channel();
+    let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
+    let handle = hrx.await.unwrap();
+    let (to_daemon, _) = tokio::time::timeout(Duration::from_secs(10), daemon_side.accept())
+        .await
+        .expect("the daemon connects")
+        .unwrap();
+    let options = SitlOptions {
+        connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
+        vehicle: VehicleConfig {
+            fly_on_estimates: true,
+            ..VehicleConfig::for_autopilot(Autopilot::Ideal)
+        },
+        speed: SPEED,
+        frames: Some(FramesListen::Listener(frames)),
+        out_dir: Some(dir.clone()),
+    };
+    let sitl_setup = setup.clone();
+    let mut sitl_task = tokio::spawn(async move {
+        sitl::run(&sitl_setup, 1, options, |_, notices| {
+            for n in notices {
+                eprintln!("sitl: {n}");
+            }
+        })
+        .await
+    });
+    let to_vehicle = tokio::select! {
+        s = vehicle_side.accept() => s.unwrap().0,
+        r = &mut sitl_task => panic!("SITL ended before connecting: {r:?}"),
+    };
+    // Relay: vehicle → daemon unchanged; daemon → vehicle unchanged and kept.
+    let (mut vr, mut vw) = to_vehicle.into_split();
+    let (mut dr, mut dw) = to_daemon.into_split();
+    let up = tokio::spawn(async move {
+        let _ = tokio::io::copy(&mut vr, &mut dw).await;
+    });
+    let down = tokio::spawn(async move {
+        let (mut log, mut buf) = (Vec::new(), vec![0_u8; 65_536]);
+        loop {
+            let n = match dr.read(&mut buf).await {
+                Ok(0) | Err(_) => break,
+                Ok(n) => n,
+            };
+            log.extend_from_slice(&buf[..n]);
+            if vw.write_all(&buf[..n]).await.is_err() {
+                break;
+            }
+        }
+        log
+    });
+    let budget = Duration::from_secs_f64((setup.scenario.warmup_s + MISSION_S) / SPEED * 3.0);
+    let summary = tokio::time::timeout(budget, sitl_task)
+        .await
+        .unwrap_or_else(|_| panic!("the SITL run did not end within {budget:?}"))
+        .unwrap()
+        .unwrap();
+    tokio::time::sleep(Duration::from_millis(300)).await;
+    let counters = handle.shared.counters();
+    handle.stop();
+    tokio::time::timeout(Duration::from_secs(10), daemon_task)
+        .await
+        .expect("daemon stops within 10 s")
+        .unwrap()
+        .unwrap();
+    let bytes = tokio::time::timeout(Duration::from_secs(10), down)
+        .await
+        .expect("relay ends when the daemon closes")
+        .unwrap();
+    up.abort();
+
+    let csv = std::fs::read_to_string(dir.join("sitl.csv")).unwrap();
+    // The recording, frames and vision markers included, replays to the solutions the
+    // daemon handed its publisher, bit for bit (docs/REPLAY.md).
+    assert!(!counters.record_failed, "recording failed");
+    let published = std::fs::read_to_string(ianav::daemon::nav_thread::Recorder::solutions_path(
+        &recording,
+    ))
+    .unwrap();
+    let log = std::io::BufReader::new(std::fs::File::open(&recording).unwrap());
+    let mut replayed = Vec::new();
+    let replay = ianav::nav::replay::replay_to_csv(
+        ianav::io::sensor_log::SensorLogReader::new(log).unwrap(),
+        1,
+        &mut replayed,
+    )
+    .unwrap();
+    assert_eq!(replay.events, counters.events_recorded);
+    assert_eq!(
+        replay.nav.fused_vision_fixes,
+        counters.nav.fused_vision_fixes
+    );
+    assert!(
+        String::from_utf8(replayed).unwrap() == published,
+        "the replay differs from the daemon's solutions"
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+    let mut lines = csv.lines();
+    let header: Vec<&str> = lines.next().unwrap().split(',').collect();
+    let col = |name: &str| header.iter().position(|h| *h == name).unwrap();
+    let (c_t, c_err) = (col("t_rx_s"), col("hor_err_m"));
+    let after_loss: Vec<f64> = lines
+        .map(|l| l.split(',').collect::<Vec<_>>())
+        .filter(|f| f[c_t].parse::<f64>().unwrap() > LOSS_S + 2.0)
+        .map(|f| f[c_err].parse().unwrap())
+        .collect();
+    let worst_m = after_loss.iter().copied().fold(0.0, f64::max);
+    let fusion = FusionConfig::default();
+    let d_max_m = (setup.scenario.warmup_s + MISSION_S) * 35.0;
+    let drms_m = (2.0 * fusion.vision_variance_m2(d_max_m)).sqrt();
+    eprintln!(
+        "frames sent {} dropped {}, fixes fused {}, source changes {}, aided ticks {} of {}, \
+         worst horizontal error after the loss {worst_m:.1} m (3 DRMS {:.1} m)",
+        summary.frames_sent,
+        summary.frames_dropped,
+        counters.nav.fused_vision_fixes,
+        counters.nav.horizontal_source_changes,
+        summary.vehicle.aided_ticks,
+        summary.vehicle.ticks_after_loss,
+        3.0 * drms_m
+    );
+    assert!(counters.frames_received > 100, "{counters:?}");
+    assert_eq!(counters.vision_failures, 0);
+    assert!(counters.nav.fused_vision_fixes > 100, "{:?}", counters.nav);
+    assert!(counters.nav.horizontal_source_changes >= 1);
+    let said = |text: &str| bytes.windows(text.len()).any(|w| w == text.as_bytes());
+    assert!(said("ianav: horizontal position from vision"));
+    assert!(
+        after_loss.len() > 100,
+        "{} estimates after the loss",
+        after_loss.len()
+    );
+    assert!(worst_m < 3.0 * drms_m, "{worst_m} m");
+    // The vehicle flew on the daemon's position for most of the denied flight.
+    assert!(
+        summary.vehicle.aided_ticks * 10 > summary.vehicle.ticks_after_loss * 9,
+        "{:?}",
+        summary.vehicle
+    );
+}
