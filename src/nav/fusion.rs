@@ -101,6 +101,10 @@ pub(crate) struct Fusion {
     /// The visual position's variance per axis at its start, m²: σ₀² at a start from the
     /// GNSS-aided INS, the fused variance then at a restart from the fused pose.
     start_variance_m2: Option<f64>,
+    /// The relative variance of the start's scale beyond `k²`: a restart while denied takes
+    /// its scale from the dead-reckoned INS distance, whose velocity error is then a scale
+    /// error `σ_v / |v|` (0 at a start with GNSS, where `k` was fitted).
+    start_scale_variance: f64,
     /// Time of the latest solution, µs.
     last_t_us: Option<u64>,
     anchor: Option<Anchor>,
@@ -128,6 +132,17 @@ pub(super) fn offset(pos: &Geodetic, ne_m: &Vector2<f64>) -> Geodetic {
     }
 }
 
+/// `(σ_v / |v|)²` of the INS's horizontal velocity (per axis) while denied, else 0.
+fn restart_scale_variance(nav: &NavSolution) -> f64 {
+    if !nav.ins_status.gnss_denied {
+        return 0.0;
+    }
+    let p_v = &nav.cov.velocity_m2ps2;
+    let speed2 = nav.v_ned_mps.xy().norm_squared();
+    let r = 0.5 * (p_v[(0, 0)] + p_v[(1, 1)]) / speed2;
+    if r.is_finite() { r.max(0.0) } else { 0.0 }
+}
+
 impl Fusion {
     /// A new INS: its covariance is no longer comparable with the anchor's.
     pub(crate) fn ins_restarted(&mut self) {
@@ -153,6 +168,7 @@ impl Fusion {
                 Some(d) => d,
                 None => {
                     self.start_variance_m2 = Some(self.variance_now_m2(cfg, nav));
+                    self.start_scale_variance = restart_scale_variance(nav);
                     0.0
                 }
             });
@@ -196,7 +212,9 @@ impl Fusion {
         self.anchor = Some(Anchor {
             fix_t_us: fix.t_us,
             offset_ne_m: d_ned.xy(),
-            variance_m2: cfg.vision_variance_m2(d) - cfg.sigma0_m * cfg.sigma0_m + start_m2,
+            variance_m2: cfg.vision_variance_m2(d) - cfg.sigma0_m * cfg.sigma0_m
+                + start_m2
+                + self.start_scale_variance * d * d,
             ins_p_h_m2: nav.cov.position_m2.fixed_view::<2, 2>(0, 0).into_owned(),
         });
     }
@@ -394,9 +412,11 @@ mod tests {
             fusion.fuse(&cfg, &mut nav, &history);
             last = Some(nav);
         }
-        // 100 s at 30 m/s.
+        // 100 s at 30 m/s. The system started while denied: its scale also carries the INS's
+        // velocity error, (σ_v/|v|)² = ½(0.04 + 0.09) / 30² per axis.
         let d_m = 3_000.0;
-        let expected: f64 = 100.0 + 0.5 * d_m + (0.003_f64 * d_m).powi(2);
+        let scale_var = 0.5 * (0.04 + 0.09) / 900.0;
+        let expected: f64 = 100.0 + 0.5 * d_m + (0.003_f64.powi(2) + scale_var) * d_m * d_m;
         let p = last.expect("solutions").cov.position_m2[(0, 0)];
         assert!((p - expected).abs() < 1e-6 * expected, "{p} vs {expected}");
     }
