@@ -7,13 +7,20 @@ variance model of `FusionConfig`
 
     sigma^2(d) = sigma0^2 + q d + (k d)^2
 
-by least squares on the mean squared error (a horizontal error of two independent axes of
+by weighted least squares on the mean squared error (a horizontal error of two independent axes of
 variance sigma^2 has E|e|^2 = 2 sigma^2), with q and k^2 kept non-negative, and prints for
 every directory the NEES |e|^2 / sigma^2(d) (chi-square with 2 degrees of freedom: mean 2,
 95 % below 5.99) of a model given on the command line or of the fit.
 
     tools/fit_vision_sigma.py --fit docs/results/vision-mc-s2-mx docs/results/vision-mc-s1-mx
-    tools/fit_vision_sigma.py --model 9.5,0,0.002 docs/results/vision-mc-s1-mx
+    tools/fit_vision_sigma.py --model 12.4,0,0.0024 docs/results/vision-mc-s1-mx
+
+With --published, the directories are `ianav-sim run --fused` outputs instead: the NEES of the
+published (fused) horizontal position against its own published covariance after the GNSS
+loss, from `navigation.csv` (error norm and the north and east sigmas, taken as one per-axis
+variance, their mean square):
+
+    tools/fit_vision_sigma.py --published out/seed1 out/seed2 ...
 
 Only the standard library: it runs wherever the run files are.
 """
@@ -134,6 +141,34 @@ def nees_report(name, runs, model):
     )
 
 
+def published_nees(directories):
+    """NEES of the published position after the loss, per run and over all runs."""
+    values = []
+    for d in directories:
+        path = os.path.join(d, "navigation.csv")
+        with open(path) as f:
+            header = f.readline().strip().split(",")
+            col = {name: i for i, name in enumerate(header)}
+            run = []
+            for line in f:
+                v = line.strip().split(",")
+                if v[col["gnss_denied"]] != "1":
+                    continue
+                e = float(v[col["err_hor_m"]])
+                var = 0.5 * (float(v[col["sigma_n_m"]]) ** 2 + float(v[col["sigma_e_m"]]) ** 2)
+                if math.isfinite(e) and var > 0.0:
+                    run.append(e * e / var)
+        if not run:
+            sys.exit(f"{path}: no denied sample")
+        inside = sum(1 for x in run if x <= CHI2_2_95) / len(run)
+        print(f"{d}: {len(run)} samples, NEES mean {sum(run) / len(run):.2f}, "
+              f"{100 * inside:.1f} % within {CHI2_2_95}")
+        values += run
+    inside = sum(1 for x in values if x <= CHI2_2_95) / len(values)
+    print(f"all {len(directories)} runs: {len(values)} samples, NEES mean "
+          f"{sum(values) / len(values):.2f}, {100 * inside:.1f} % within {CHI2_2_95}")
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     ap.add_argument("dirs", nargs="+", help="mc batch directories")
@@ -141,7 +176,12 @@ def main():
     ap.add_argument("--fit", action="store_true", help="fit the model on all directories")
     ap.add_argument("--model", help="sigma0_m,q_m2_per_m,k_per_m to check instead")
     ap.add_argument("--seeds", default="1-100", help="seed range used, inclusive (A-B)")
+    ap.add_argument("--published", action="store_true",
+                    help="the directories are `ianav-sim run --fused` outputs")
     args = ap.parse_args()
+    if args.published:
+        published_nees(args.dirs)
+        return
     lo, hi = (int(x) for x in args.seeds.split("-"))
     batches = [(d, runs_of(d, args.system, (lo, hi))) for d in args.dirs]
     for d, runs in batches:
