@@ -16,17 +16,15 @@ use ianav::nav::fusion::FusionConfig;
 use ianav_sim::flight::{CameraSetup, FlightSetup};
 use ianav_sim::sitl::{self, Autopilot, FramesListen, SitlOptions, VehicleConfig};
 use ianav_sim::terrain::{Terrain, Zone};
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::TcpListener;
+
+mod common;
 
 /// Mission flown after the 50 s warm-up, s, and the GNSS loss in it, s.
 const MISSION_S: f64 = 60.0;
 const LOSS_S: f64 = 20.0;
 /// Simulated seconds per wall second.
 const SPEED: f64 = 2.0;
-/// Reduction of the authors' 768 × 1024 camera (1: none; the vision's pixel settings are
-/// divided by it).
-const SCALE: u32 = 1;
 
 fn setup() -> FlightSetup {
     let mut s = FlightSetup::builtin(2).unwrap();
@@ -36,20 +34,15 @@ fn setup() -> FlightSetup {
     let start = zone.start();
     s.scenario.start.lat_deg = start.lat_deg;
     s.scenario.start.lon_deg = start.lon_deg;
-    let mut camera = CameraSetup::new(std::sync::Arc::new(Terrain::new(zone, 0)));
-    camera.camera.width_px /= SCALE;
-    camera.camera.height_px /= SCALE;
-    camera.camera.pixel_pitch_um *= f64::from(SCALE);
-    s.camera = Some(camera);
+    s.camera = Some(CameraSetup::new(std::sync::Arc::new(Terrain::new(zone, 0))));
     s
 }
 
 /// The daemon's configuration: the vehicle's camera and the ground's height at the start
-/// (the daemon's flat terrain), the pixel settings of the vision scaled with the image.
+/// (the daemon's flat terrain); the vision's default settings (the paper's IA-VNS).
 fn daemon_toml(setup: &FlightSetup, vehicle: &str, frames: &str) -> String {
     let cam = &setup.camera.as_ref().unwrap().camera;
     let ground_m = Zone::Mix.start().ground_m;
-    let v = ianav::vision::vns::VnsConfig::default();
     // The vehicle's ATTITUDE is its own INS: white errors, nothing slow to estimate (as in
     // e2e_daemon_sitl.rs).
     let mut ins = ianav::ins::InsConfig::default();
@@ -64,8 +57,6 @@ fn daemon_toml(setup: &FlightSetup, vehicle: &str, frames: &str) -> String {
          width_px = {}\nheight_px = {}\nfocal_length_mm = {}\npixel_pitch_um = {}\n\
          terrain_height_m = {ground_m}\n\
          [navigation]\nmag_decimal_year = {}\n\
-         [vision]\ninit_cell_size_px = {}\ninit_min_disparity_px = {}\n\
-         [vision.detector]\ncell_size_px = {}\n\
          [logging]\ncounters_period_s = 0.0\n\
          [ins.alignment]\n{alignment}",
         cam.width_px,
@@ -73,9 +64,6 @@ fn daemon_toml(setup: &FlightSetup, vehicle: &str, frames: &str) -> String {
         cam.focal_length_mm,
         cam.pixel_pitch_um,
         setup.scenario.magnetic_decimal_year,
-        v.init_cell_size_px / SCALE,
-        v.init_min_disparity_px / f64::from(SCALE),
-        v.detector.cell_size_px / SCALE,
     )
 }
 
@@ -106,10 +94,7 @@ async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_it
     let (htx, hrx) = tokio::sync::oneshot::channel();
     let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
     let handle = hrx.await.unwrap();
-    let (to_daemon, _) = tokio::time::timeout(Duration::from_secs(10), daemon_side.accept())
-        .await
-        .expect("the daemon connects")
-        .unwrap();
+    let to_daemon = common::accept(&daemon_side, "the daemon").await;
     let options = SitlOptions {
         connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
         vehicle: VehicleConfig {
@@ -130,29 +115,10 @@ async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_it
         .await
     });
     let to_vehicle = tokio::select! {
-        s = vehicle_side.accept() => s.unwrap().0,
+        s = common::accept(&vehicle_side, "the SITL vehicle") => s,
         r = &mut sitl_task => panic!("SITL ended before connecting: {r:?}"),
     };
-    // Relay: vehicle → daemon unchanged; daemon → vehicle unchanged and kept.
-    let (mut vr, mut vw) = to_vehicle.into_split();
-    let (mut dr, mut dw) = to_daemon.into_split();
-    let up = tokio::spawn(async move {
-        let _ = tokio::io::copy(&mut vr, &mut dw).await;
-    });
-    let down = tokio::spawn(async move {
-        let (mut log, mut buf) = (Vec::new(), vec![0_u8; 65_536]);
-        loop {
-            let n = match dr.read(&mut buf).await {
-                Ok(0) | Err(_) => break,
-                Ok(n) => n,
-            };
-            log.extend_from_slice(&buf[..n]);
-            if vw.write_all(&buf[..n]).await.is_err() {
-                break;
-            }
-        }
-        log
-    });
+    let relay = common::Relay::start(to_vehicle, to_daemon);
     let budget = Duration::from_secs_f64((setup.scenario.warmup_s + MISSION_S) / SPEED * 3.0);
     let summary = tokio::time::timeout(budget, sitl_task)
         .await
@@ -167,36 +133,15 @@ async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_it
         .expect("daemon stops within 10 s")
         .unwrap()
         .unwrap();
-    let bytes = tokio::time::timeout(Duration::from_secs(10), down)
-        .await
-        .expect("relay ends when the daemon closes")
-        .unwrap();
-    up.abort();
+    let bytes = relay.finish().await;
 
     let csv = std::fs::read_to_string(dir.join("sitl.csv")).unwrap();
     // The recording, frames and vision markers included, replays to the solutions the
     // daemon handed its publisher, bit for bit (docs/REPLAY.md).
-    assert!(!counters.record_failed, "recording failed");
-    let published = std::fs::read_to_string(ianav::daemon::nav_thread::Recorder::solutions_path(
-        &recording,
-    ))
-    .unwrap();
-    let log = std::io::BufReader::new(std::fs::File::open(&recording).unwrap());
-    let mut replayed = Vec::new();
-    let replay = ianav::nav::replay::replay_to_csv(
-        ianav::io::sensor_log::SensorLogReader::new(log).unwrap(),
-        1,
-        &mut replayed,
-    )
-    .unwrap();
-    assert_eq!(replay.events, counters.events_recorded);
+    let replay = common::assert_replay_gives_the_daemons_solutions(&recording, &counters);
     assert_eq!(
         replay.nav.fused_vision_fixes,
         counters.nav.fused_vision_fixes
-    );
-    assert!(
-        String::from_utf8(replayed).unwrap() == published,
-        "the replay differs from the daemon's solutions"
     );
     let _ = std::fs::remove_dir_all(&dir);
     let mut lines = csv.lines();

@@ -30,8 +30,9 @@ use ianav_sim::sitl::{self, Autopilot, SitlOptions, SitlSummary, VehicleConfig};
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::{MAVLinkMessageRaw, Message};
 use nalgebra::UnitQuaternion;
-use tokio::io::{AsyncReadExt, AsyncWriteExt};
-use tokio::net::{TcpListener, TcpStream};
+use tokio::net::TcpListener;
+
+mod common;
 
 /// Mission duration flown (after the 50 s warm-up), s.
 const MISSION_S: f64 = 300.0;
@@ -243,15 +244,6 @@ fn parse_stream(bytes: &[u8]) -> (Vec<apm::MavMessage>, (usize, usize, usize)) {
     (msgs, (bytes.len() - framed, bad_payload, seq_gaps))
 }
 
-async fn accept(l: &TcpListener, who: &str) -> TcpStream {
-    let (s, _) = tokio::time::timeout(Duration::from_secs(15), l.accept())
-        .await
-        .unwrap_or_else(|_| panic!("{who} did not connect within 15 s"))
-        .unwrap();
-    s.set_nodelay(true).unwrap();
-    s
-}
-
 /// One flight at a time: each runs the daemon and the vehicle at 10× real time, and two at
 /// once on a 2-core machine fall behind their schedule.
 static ONE_FLIGHT: tokio::sync::Mutex<()> = tokio::sync::Mutex::const_new(());
@@ -296,7 +288,7 @@ async fn fly_vehicle(
     let (htx, hrx) = tokio::sync::oneshot::channel();
     let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
     let handle = hrx.await.unwrap();
-    let to_daemon = accept(&daemon_side, "the daemon").await;
+    let to_daemon = common::accept(&daemon_side, "the daemon").await;
     let options = SitlOptions {
         connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
         vehicle: VehicleConfig {
@@ -318,30 +310,11 @@ async fn fly_vehicle(
         .await
     });
     let to_vehicle = tokio::select! {
-        s = accept(&vehicle_side, "the SITL vehicle") => s,
+        s = common::accept(&vehicle_side, "the SITL vehicle") => s,
         r = &mut sitl_task => panic!("SITL ended before connecting: {r:?}"),
     };
 
-    // The relay: vehicle → daemon unchanged; daemon → vehicle unchanged and recorded.
-    let (mut vr, mut vw) = to_vehicle.into_split();
-    let (mut dr, mut dw) = to_daemon.into_split();
-    let up = tokio::spawn(async move {
-        let _ = tokio::io::copy(&mut vr, &mut dw).await;
-    });
-    let down = tokio::spawn(async move {
-        let (mut log, mut buf) = (Vec::with_capacity(8 << 20), vec![0_u8; 65_536]);
-        loop {
-            let n = match dr.read(&mut buf).await {
-                Ok(0) | Err(_) => break,
-                Ok(n) => n,
-            };
-            log.extend_from_slice(&buf[..n]);
-            if vw.write_all(&buf[..n]).await.is_err() {
-                break;
-            }
-        }
-        log
-    });
+    let relay = common::Relay::start(to_vehicle, to_daemon);
 
     let budget =
         Duration::from_secs_f64((setup.scenario.warmup_s + MISSION_S) / SPEED * 2.0 + 30.0);
@@ -366,14 +339,10 @@ async fn fly_vehicle(
         .expect("daemon stops within 10 s")
         .unwrap()
         .unwrap();
-    let bytes = tokio::time::timeout(Duration::from_secs(10), down)
-        .await
-        .expect("relay ends when the daemon closes")
-        .unwrap();
-    up.abort();
+    let bytes = relay.finish().await;
     let (daemon_msgs, stream_defects) = parse_stream(&bytes);
     let rows = read_rows(&dir.join("sitl.csv"));
-    assert_replay_gives_the_daemons_solutions(&recording, &counters);
+    common::assert_replay_gives_the_daemons_solutions(&recording, &counters);
     let _ = std::fs::remove_dir_all(&dir);
     Run {
         summary,
@@ -382,39 +351,6 @@ async fn fly_vehicle(
         daemon_msgs,
         stream_defects,
         wall_s,
-    }
-}
-
-/// The daemon's recording of a flight, replayed through the navigation core with the settings
-/// recorded in it, gives every solution the daemon's navigator handed its publisher, bit for
-/// bit (the same CSV text: numbers in their shortest exact form).
-fn assert_replay_gives_the_daemons_solutions(recording: &std::path::Path, counters: &Counters) {
-    assert!(!counters.record_failed, "recording failed");
-    let published = std::fs::read_to_string(ianav::daemon::nav_thread::Recorder::solutions_path(
-        recording,
-    ))
-    .unwrap();
-    let log = std::io::BufReader::new(std::fs::File::open(recording).unwrap());
-    let mut replayed = Vec::new();
-    let summary = ianav::nav::replay::replay_to_csv(
-        ianav::io::sensor_log::SensorLogReader::new(log).unwrap(),
-        1,
-        &mut replayed,
-    )
-    .unwrap();
-    let replayed = String::from_utf8(replayed).unwrap();
-    assert_eq!(summary.events, counters.events_recorded);
-    assert!(summary.solutions > 1_000, "{} solutions", summary.solutions);
-    if replayed != published {
-        let first = replayed
-            .lines()
-            .zip(published.lines())
-            .position(|(a, b)| a != b);
-        panic!(
-            "replay ({} lines) differs from the daemon's solutions ({} lines) at line {first:?}",
-            replayed.lines().count(),
-            published.lines().count()
-        );
     }
 }
 

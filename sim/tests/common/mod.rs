@@ -1,0 +1,100 @@
+//! What the end-to-end tests of the daemon beside the SITL vehicle share: accepting the two
+//! connections, the relay between them that keeps the daemon's bytes, and the check that the
+//! daemon's recording replays to what it published.
+
+use std::time::Duration;
+
+use ianav::daemon::Counters;
+use tokio::io::{AsyncReadExt, AsyncWriteExt};
+use tokio::net::{TcpListener, TcpStream};
+use tokio::task::JoinHandle;
+
+/// The one connection `who` makes to `l`, within 15 s.
+pub async fn accept(l: &TcpListener, who: &str) -> TcpStream {
+    let (s, _) = tokio::time::timeout(Duration::from_secs(15), l.accept())
+        .await
+        .unwrap_or_else(|_| panic!("{who} did not connect within 15 s"))
+        .expect("accept");
+    s.set_nodelay(true).expect("nodelay");
+    s
+}
+
+/// Vehicle → daemon unchanged; daemon → vehicle unchanged and kept.
+pub struct Relay {
+    up: JoinHandle<()>,
+    down: JoinHandle<Vec<u8>>,
+}
+
+impl Relay {
+    /// Start relaying between the two connections.
+    pub fn start(to_vehicle: TcpStream, to_daemon: TcpStream) -> Self {
+        let (mut vr, mut vw) = to_vehicle.into_split();
+        let (mut dr, mut dw) = to_daemon.into_split();
+        let up = tokio::spawn(async move {
+            let _ = tokio::io::copy(&mut vr, &mut dw).await;
+        });
+        let down = tokio::spawn(async move {
+            let (mut log, mut buf) = (Vec::with_capacity(8 << 20), vec![0_u8; 65_536]);
+            loop {
+                let n = match dr.read(&mut buf).await {
+                    Ok(0) | Err(_) => break,
+                    Ok(n) => n,
+                };
+                log.extend_from_slice(&buf[..n]);
+                if vw.write_all(&buf[..n]).await.is_err() {
+                    break;
+                }
+            }
+            log
+        });
+        Self { up, down }
+    }
+
+    /// Everything the daemon sent, once it has closed its side (within 10 s).
+    pub async fn finish(self) -> Vec<u8> {
+        let bytes = tokio::time::timeout(Duration::from_secs(10), self.down)
+            .await
+            .expect("relay ends when the daemon closes")
+            .expect("relay task");
+        self.up.abort();
+        bytes
+    }
+}
+
+/// The daemon's recording of a flight, replayed through the navigation core with the settings
+/// recorded in it, gives every solution the daemon's navigator handed its publisher, bit for
+/// bit (the same CSV text: numbers in their shortest exact form). Returns the replay's
+/// summary.
+pub fn assert_replay_gives_the_daemons_solutions(
+    recording: &std::path::Path,
+    counters: &Counters,
+) -> ianav::nav::replay::ReplaySummary {
+    assert!(!counters.record_failed, "recording failed");
+    let published = std::fs::read_to_string(ianav::daemon::nav_thread::Recorder::solutions_path(
+        recording,
+    ))
+    .expect("the daemon's solutions");
+    let log = std::io::BufReader::new(std::fs::File::open(recording).expect("the recording"));
+    let mut replayed = Vec::new();
+    let summary = ianav::nav::replay::replay_to_csv(
+        ianav::io::sensor_log::SensorLogReader::new(log).expect("a sensor log"),
+        1,
+        &mut replayed,
+    )
+    .expect("the replay");
+    let replayed = String::from_utf8(replayed).expect("UTF-8");
+    assert_eq!(summary.events, counters.events_recorded);
+    assert!(summary.solutions > 1_000, "{} solutions", summary.solutions);
+    if replayed != published {
+        let first = replayed
+            .lines()
+            .zip(published.lines())
+            .position(|(a, b)| a != b);
+        panic!(
+            "replay ({} lines) differs from the daemon's solutions ({} lines) at line {first:?}",
+            replayed.lines().count(),
+            published.lines().count()
+        );
+    }
+    summary
+}
