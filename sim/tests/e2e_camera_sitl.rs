@@ -14,7 +14,7 @@ use ianav::daemon::config::DaemonConfig;
 use ianav::daemon::{self};
 use ianav::nav::fusion::FusionConfig;
 use ianav_sim::flight::{CameraSetup, FlightSetup};
-use ianav_sim::sitl::{self, Autopilot, FramesListen, SitlOptions, VehicleConfig};
+use ianav_sim::sitl::{Autopilot, FramesListen, SitlOptions, VehicleConfig};
 use ianav_sim::terrain::{Terrain, Zone};
 use tokio::net::TcpListener;
 
@@ -105,15 +105,7 @@ async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_it
         frames: Some(FramesListen::Listener(frames)),
         out_dir: Some(dir.clone()),
     };
-    let sitl_setup = setup.clone();
-    let mut sitl_task = tokio::spawn(async move {
-        sitl::run(&sitl_setup, 1, options, |_, notices| {
-            for n in notices {
-                eprintln!("sitl: {n}");
-            }
-        })
-        .await
-    });
+    let mut sitl_task = common::spawn_sitl(&setup, 1, options);
     let to_vehicle = tokio::select! {
         s = common::accept(&vehicle_side, "the SITL vehicle") => s,
         r = &mut sitl_task => panic!("SITL ended before connecting: {r:?}"),
@@ -127,12 +119,7 @@ async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_it
         .unwrap();
     tokio::time::sleep(Duration::from_millis(300)).await;
     let counters = handle.shared.counters();
-    handle.stop();
-    tokio::time::timeout(Duration::from_secs(10), daemon_task)
-        .await
-        .expect("daemon stops within 10 s")
-        .unwrap()
-        .unwrap();
+    common::stop_daemon(&handle, daemon_task).await;
     let bytes = relay.finish().await;
 
     let csv = std::fs::read_to_string(dir.join("sitl.csv")).unwrap();

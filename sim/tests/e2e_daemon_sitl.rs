@@ -299,16 +299,8 @@ async fn fly_vehicle(
         frames: None,
         out_dir: Some(dir.clone()),
     };
-    let sitl_setup = setup.clone();
     let started = std::time::Instant::now();
-    let mut sitl_task = tokio::spawn(async move {
-        sitl::run(&sitl_setup, seed, options, |_, notices| {
-            for n in notices {
-                eprintln!("sitl: {n}");
-            }
-        })
-        .await
-    });
+    let mut sitl_task = common::spawn_sitl(setup, seed, options);
     let to_vehicle = tokio::select! {
         s = common::accept(&vehicle_side, "the SITL vehicle") => s,
         r = &mut sitl_task => panic!("SITL ended before connecting: {r:?}"),
@@ -333,12 +325,7 @@ async fn fly_vehicle(
     }
     tokio::time::sleep(Duration::from_millis(200)).await;
     let counters = handle.shared.counters();
-    handle.stop();
-    tokio::time::timeout(Duration::from_secs(10), daemon_task)
-        .await
-        .expect("daemon stops within 10 s")
-        .unwrap()
-        .unwrap();
+    common::stop_daemon(&handle, daemon_task).await;
     let bytes = relay.finish().await;
     let (daemon_msgs, stream_defects) = parse_stream(&bytes);
     let rows = read_rows(&dir.join("sitl.csv"));

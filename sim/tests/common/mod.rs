@@ -4,7 +4,9 @@
 
 use std::time::Duration;
 
-use ianav::daemon::Counters;
+use ianav::daemon::{Counters, DaemonError, Handle};
+use ianav_sim::flight::FlightSetup;
+use ianav_sim::sitl::{self, SitlError, SitlOptions, SitlSummary};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::task::JoinHandle;
@@ -17,6 +19,33 @@ pub async fn accept(l: &TcpListener, who: &str) -> TcpStream {
         .expect("accept");
     s.set_nodelay(true).expect("nodelay");
     s
+}
+
+/// The SITL vehicle flying `setup` with `seed`, its notices printed.
+pub fn spawn_sitl(
+    setup: &FlightSetup,
+    seed: u64,
+    options: SitlOptions,
+) -> JoinHandle<Result<SitlSummary, SitlError>> {
+    let setup = setup.clone();
+    tokio::spawn(async move {
+        sitl::run(&setup, seed, options, |_, notices| {
+            for n in notices {
+                eprintln!("sitl: {n}");
+            }
+        })
+        .await
+    })
+}
+
+/// Stop the daemon and wait (10 s at most) for it to end without error.
+pub async fn stop_daemon(handle: &Handle, task: JoinHandle<Result<(), DaemonError>>) {
+    handle.stop();
+    tokio::time::timeout(Duration::from_secs(10), task)
+        .await
+        .expect("daemon stops within 10 s")
+        .expect("daemon task")
+        .expect("daemon ends without error");
 }
 
 /// Vehicle → daemon unchanged; daemon → vehicle unchanged and kept.
