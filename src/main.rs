@@ -75,6 +75,24 @@ enum Command {
         #[arg(long)]
         states: bool,
     },
+    /// Replay a sensor log (a daemon's recording, the simulator's `sensors.bin`) with the
+    /// settings recorded in it and write an MCAP file Foxglove opens: the frames, the
+    /// published position with its covariance, the visual fixes and a status to plot
+    /// (docs/REPLAY.md "MCAP").
+    ExportMcap {
+        /// Sensor log.
+        #[arg(value_name = "FILE")]
+        log: PathBuf,
+        /// MCAP file to write.
+        #[arg(long, value_name = "FILE")]
+        out: PathBuf,
+        /// Period of the position and status messages, ms.
+        #[arg(long, default_value_t = 100, value_name = "MS")]
+        period_ms: u64,
+        /// Write every N-th frame.
+        #[arg(long, default_value_t = 1, value_name = "N")]
+        frame_every: u64,
+    },
     /// Print the version and exit.
     Version,
 }
@@ -108,6 +126,12 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             overrides,
             states,
         }) => replay(&log, &out, every, &overrides, states),
+        Some(Command::ExportMcap {
+            log,
+            out,
+            period_ms,
+            frame_every,
+        }) => export_mcap(&log, &out, period_ms, frame_every),
         Some(Command::Run { config, record }) => {
             let mut p = preflight(&config).map_err(|e| in_file(&config, e))?;
             p.config.record = record;
@@ -127,6 +151,37 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             result
         }
     }
+}
+
+/// `ianav export-mcap`: the log through the navigator, to MCAP.
+fn export_mcap(log: &Path, out: &Path, period_ms: u64, frame_every: u64) -> anyhow::Result<()> {
+    use std::io::BufReader;
+    let file = std::fs::File::open(log).with_context(|| log.display().to_string())?;
+    let reader = ianav::io::sensor_log::SensorLogReader::new(BufReader::new(file))
+        .with_context(|| log.display().to_string())?;
+    let cfg = ianav::nav::replay::config_of(&reader).with_context(|| log.display().to_string())?;
+    let mcap = std::io::BufWriter::new(
+        std::fs::File::create(out).with_context(|| out.display().to_string())?,
+    );
+    let options = ianav::io::mcap_export::McapOptions {
+        period_us: period_ms.saturating_mul(1_000),
+        frame_every,
+    };
+    let s = ianav::io::mcap_export::export_mcap(reader, &cfg, mcap, &options)
+        .with_context(|| format!("{} -> {}", log.display(), out.display()))?;
+    let counts: Vec<String> = s
+        .messages
+        .iter()
+        .map(|(topic, n)| format!("{topic} {n}"))
+        .collect();
+    println!(
+        "{} events, {} solutions; wrote {}: {}",
+        s.replay.events,
+        s.replay.solutions,
+        out.display(),
+        counts.join(", ")
+    );
+    Ok(())
 }
 
 /// `ianav replay`: the log through the navigator, the solutions to `out/solutions.csv`.

@@ -463,3 +463,86 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
     // this bounds the covariance's honesty loosely.
     assert!(worst_nees < 13.8, "worst NEES {worst_nees:.1}");
 }
+
+/// The MCAP export (docs/REPLAY.md "MCAP"): the golden flight with the GNSS lost at 4 s,
+/// fused, recorded and exported; read back with the `mcap` crate, every channel has its
+/// Foxglove schema and JSON encoding, the counts are the frames, the 10-Hz solutions and the
+/// fixes, and the positions are the replayed solutions'.
+#[test]
+fn a_recording_exports_to_mcap_with_foxglove_schemas() {
+    use ianav::io::mcap_export::{self, McapOptions};
+    let mut setup = setup();
+    setup.scenario.gnss_loss_s = 4.0;
+    let mut flight = Flight::new(&setup, 2).unwrap();
+    let mut cfg = flight.navigator().unwrap().config().clone();
+    let mut rec = Recorder::default();
+    flight.run(&mut rec, |_| {}).unwrap();
+    cfg.fusion = Some(ianav::nav::fusion::FusionConfig::default());
+    let mut writer = SensorLogWriter::new(Vec::new()).unwrap();
+    writer.write_nav_config(&config_to_toml(&cfg)).unwrap();
+    for e in &rec.events {
+        writer.write(e).unwrap();
+    }
+    let bytes = writer.finish().unwrap();
+    let mut out = std::io::Cursor::new(Vec::new());
+    let summary = mcap_export::export_mcap(
+        SensorLogReader::new(&bytes[..]).unwrap(),
+        &cfg,
+        &mut out,
+        &McapOptions::default(),
+    )
+    .unwrap();
+    // The same log replayed alone: the solutions the export wrote from.
+    let mut solutions = Vec::new();
+    replay(SensorLogReader::new(&bytes[..]).unwrap(), &cfg, |s| {
+        solutions.push(*s);
+        Ok(())
+    })
+    .unwrap();
+    let frames = rec
+        .events
+        .iter()
+        .filter(|e| matches!(e, SensorEvent::Frame(_)))
+        .count() as u64;
+    let mut counts = std::collections::BTreeMap::<String, u64>::new();
+    let mut positions = Vec::new();
+    let mcap_bytes = out.into_inner();
+    for m in mcap::MessageStream::new(&mcap_bytes).unwrap() {
+        let m = m.unwrap();
+        let schema = m.channel.schema.as_ref().unwrap();
+        let expected = match m.channel.topic.as_str() {
+            mcap_export::TOPIC_IMAGE => "foxglove.CompressedImage",
+            mcap_export::TOPIC_POSITION | mcap_export::TOPIC_VISION_FIX => "foxglove.LocationFix",
+            mcap_export::TOPIC_STATUS => "ianav.Status",
+            other => panic!("unexpected topic {other}"),
+        };
+        assert_eq!(schema.name, expected);
+        assert_eq!(schema.encoding, "jsonschema");
+        assert_eq!(m.channel.message_encoding, "json");
+        let v: serde_json::Value = serde_json::from_slice(&m.data).unwrap();
+        if m.channel.topic == mcap_export::TOPIC_POSITION {
+            positions.push((m.log_time / 1_000, v["latitude"].as_f64().unwrap()));
+        }
+        if m.channel.topic == mcap_export::TOPIC_IMAGE {
+            assert_eq!(v["format"], "png");
+        }
+        *counts.entry(m.channel.topic.clone()).or_insert(0) += 1;
+    }
+    assert_eq!(counts, summary.messages);
+    assert_eq!(counts[mcap_export::TOPIC_IMAGE], frames);
+    // One solution per 100 ms of the 100-Hz IMU.
+    let n = solutions.len() as u64;
+    assert!(
+        counts[mcap_export::TOPIC_POSITION].abs_diff(n / 10) <= 1,
+        "{counts:?}, {n}"
+    );
+    assert_eq!(
+        counts[mcap_export::TOPIC_STATUS],
+        counts[mcap_export::TOPIC_POSITION]
+    );
+    assert!(counts[mcap_export::TOPIC_VISION_FIX] > 30, "{counts:?}");
+    for (t_us, lat_deg) in positions {
+        let s = solutions.iter().find(|s| s.t_us == t_us).unwrap();
+        assert_eq!(lat_deg, s.pos.lat_rad.to_degrees());
+    }
+}

@@ -150,6 +150,17 @@ fn apply_override(table: &mut toml::Table, o: &str) -> Result<(), ReplayError> {
 pub fn replay<R: Read>(
     reader: SensorLogReader<R>,
     cfg: &NavConfig,
+    on_solution: impl FnMut(&NavSolution) -> Result<(), ReplayError>,
+) -> Result<ReplaySummary, ReplayError> {
+    replay_with_events(reader, cfg, |_, _| Ok(()), on_solution)
+}
+
+/// [`replay`], also handing every event of the log to `on_event` (with the navigator after
+/// it), before the solution it gives.
+pub fn replay_with_events<R: Read>(
+    reader: SensorLogReader<R>,
+    cfg: &NavConfig,
+    mut on_event: impl FnMut(&crate::sensors::SensorEvent, &Navigator) -> Result<(), ReplayError>,
     mut on_solution: impl FnMut(&NavSolution) -> Result<(), ReplayError>,
 ) -> Result<ReplaySummary, ReplayError> {
     use crate::sensors::SensorEvent;
@@ -172,6 +183,7 @@ pub fn replay<R: Read>(
         if let Some(task) = nav.take_vision_task() {
             vision_done = Some(task.run());
         }
+        on_event(&event, &nav)?;
         if let Some(sol) = sol {
             summary.solutions += 1;
             on_solution(&sol)?;

@@ -1,0 +1,301 @@
+//! A sensor log (a daemon's recording, a simulated flight's log) replayed through the
+//! navigation core and written as MCAP, the container Foxglove opens (docs/REPLAY.md "MCAP").
+//! Messages are JSON with Foxglove's well-known schema names, so its image, map and plot panels
+//! show them without configuration:
+//!
+//! | topic | schema | what |
+//! |---|---|---|
+//! | `/camera/image` | `foxglove.CompressedImage` | each frame the navigator took, PNG |
+//! | `/ianav/position` | `foxglove.LocationFix` | the published (fused) position and its ENU covariance |
+//! | `/ianav/vision_fix` | `foxglove.LocationFix` | each new fix of the visual navigation |
+//! | `/ianav/status` | `ianav.Status` | source, states, counters and accuracies to plot |
+//!
+//! Log time is the sensor time of the solution or frame, in nanoseconds.
+
+use std::collections::BTreeMap;
+use std::io::{Read, Seek, Write};
+
+use base64::Engine as _;
+
+use super::sensor_log::SensorLogReader;
+use crate::nav::replay::{ReplayError, ReplaySummary, replay_with_events};
+use crate::nav::{NavConfig, NavSolution, PositionSource};
+use crate::sensors::SensorEvent;
+
+/// Topics written.
+pub const TOPIC_IMAGE: &str = "/camera/image";
+/// The published position.
+pub const TOPIC_POSITION: &str = "/ianav/position";
+/// The visual navigation's fixes.
+pub const TOPIC_VISION_FIX: &str = "/ianav/vision_fix";
+/// Status for plots.
+pub const TOPIC_STATUS: &str = "/ianav/status";
+
+/// Why an export failed.
+#[derive(Debug, thiserror::Error)]
+pub enum McapExportError {
+    /// Replaying the log failed.
+    #[error(transparent)]
+    Replay(#[from] ReplayError),
+    /// Writing MCAP failed.
+    #[error("writing MCAP: {0}")]
+    Mcap(#[from] mcap::McapError),
+}
+
+/// What to write.
+#[derive(Debug, Clone, Copy)]
+pub struct McapOptions {
+    /// Period of the position and status messages, µs (solutions come at the IMU rate).
+    pub period_us: u64,
+    /// Write every n-th frame the navigator took (1 = all).
+    pub frame_every: u64,
+}
+
+impl Default for McapOptions {
+    fn default() -> Self {
+        Self {
+            period_us: 100_000,
+            frame_every: 1,
+        }
+    }
+}
+
+/// What an export wrote.
+#[derive(Debug, Clone, Default)]
+pub struct McapSummary {
+    /// The replay behind it.
+    pub replay: ReplaySummary,
+    /// Messages per topic.
+    pub messages: BTreeMap<String, u64>,
+}
+
+/// A `LocationFix` covariance of type 0 (unknown).
+const UNKNOWN_COVARIANCE: [f64; 9] = [0.0; 9];
+
+/// Foxglove's `Time`.
+fn stamp(t_us: u64) -> serde_json::Value {
+    serde_json::json!({ "sec": t_us / 1_000_000, "nsec": (t_us % 1_000_000) * 1_000 })
+}
+
+const TIME_SCHEMA: &str = r#"{"type":"object","properties":{"sec":{"type":"integer","minimum":0},"nsec":{"type":"integer","minimum":0,"maximum":999999999}}}"#;
+
+fn compressed_image_schema() -> String {
+    format!(
+        r#"{{"title":"foxglove.CompressedImage","type":"object","properties":{{"timestamp":{TIME_SCHEMA},"frame_id":{{"type":"string"}},"data":{{"type":"string","contentEncoding":"base64"}},"format":{{"type":"string"}}}}}}"#
+    )
+}
+
+fn location_fix_schema() -> String {
+    format!(
+        r#"{{"title":"foxglove.LocationFix","type":"object","properties":{{"timestamp":{TIME_SCHEMA},"frame_id":{{"type":"string"}},"latitude":{{"type":"number"}},"longitude":{{"type":"number"}},"altitude":{{"type":"number"}},"position_covariance":{{"type":"array","items":{{"type":"number"}},"minItems":9,"maxItems":9}},"position_covariance_type":{{"type":"integer"}}}}}}"#
+    )
+}
+
+fn status_schema() -> String {
+    format!(
+        r#"{{"title":"ianav.Status","type":"object","properties":{{"timestamp":{TIME_SCHEMA},"horizontal_source":{{"type":"string"}},"vision_state":{{"type":"string"}},"gnss_denied":{{"type":"boolean"}},"reset_counter":{{"type":"integer"}},"sigma_north_m":{{"type":"number"}},"sigma_east_m":{{"type":"number"}},"sigma_down_m":{{"type":"number"}},"matched":{{"type":"integer"}},"inliers":{{"type":"integer"}},"frames":{{"type":"integer"}},"fused_vision_fixes":{{"type":"integer"}},"vision_restarts":{{"type":"integer"}}}}}}"#
+    )
+}
+
+/// The ENU covariance of a solution's NED position, row-major.
+fn enu_covariance(sol: &NavSolution) -> [f64; 9] {
+    let p = &sol.cov.position_m2;
+    // ENU = P · NED with P swapping north and east and negating down.
+    let m = nalgebra::Matrix3::new(0.0, 1.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, -1.0);
+    let enu = m * p * m.transpose();
+    let mut out = [0.0; 9];
+    for (i, v) in out.iter_mut().enumerate() {
+        *v = enu[(i / 3, i % 3)];
+    }
+    out
+}
+
+/// One channel per topic, with its sequence counter.
+struct Channels {
+    ids: BTreeMap<&'static str, u16>,
+    counts: BTreeMap<String, u64>,
+}
+
+impl Channels {
+    fn write<W: Write + Seek>(
+        &mut self,
+        out: &mut mcap::Writer<W>,
+        topic: &'static str,
+        t_us: u64,
+        msg: &serde_json::Value,
+    ) -> Result<(), mcap::McapError> {
+        let Some(&channel_id) = self.ids.get(topic) else {
+            return Ok(());
+        };
+        let n = self.counts.entry(topic.to_owned()).or_insert(0);
+        *n += 1;
+        let t_ns = t_us.saturating_mul(1_000);
+        out.write_to_known_channel(
+            &mcap::records::MessageHeader {
+                channel_id,
+                sequence: u32::try_from(*n).unwrap_or(u32::MAX),
+                log_time: t_ns,
+                publish_time: t_ns,
+            },
+            msg.to_string().as_bytes(),
+        )
+    }
+}
+
+/// The position and status messages of one solution.
+fn write_solution<W: Write + Seek>(
+    channels: &mut Channels,
+    writer: &mut mcap::Writer<W>,
+    sol: &NavSolution,
+    stats: &crate::nav::NavigatorStats,
+) -> Result<(), mcap::McapError> {
+    let p = &sol.cov.position_m2;
+    let source = match sol.horizontal_source {
+        PositionSource::Ins => "ins",
+        PositionSource::Vision => "vision",
+    };
+    let position = serde_json::json!({
+        "timestamp": stamp(sol.t_us),
+        "frame_id": "wgs84",
+        "latitude": sol.pos.lat_rad.to_degrees(),
+        "longitude": sol.pos.lon_rad.to_degrees(),
+        "altitude": sol.pos.h_m,
+        "position_covariance": enu_covariance(sol),
+        "position_covariance_type": 3,
+    });
+    channels.write(writer, TOPIC_POSITION, sol.t_us, &position)?;
+    let status = serde_json::json!({
+        "timestamp": stamp(sol.t_us),
+        "horizontal_source": source,
+        "vision_state": format!("{:?}", sol.vision.state),
+        "gnss_denied": sol.ins_status.gnss_denied,
+        "reset_counter": sol.reset_counter,
+        "sigma_north_m": p[(0, 0)].max(0.0).sqrt(),
+        "sigma_east_m": p[(1, 1)].max(0.0).sqrt(),
+        "sigma_down_m": p[(2, 2)].max(0.0).sqrt(),
+        "matched": sol.vision.n_matched,
+        "inliers": sol.vision.n_inliers,
+        "frames": stats.frames,
+        "fused_vision_fixes": stats.fused_vision_fixes,
+        "vision_restarts": stats.vision_restarts,
+    });
+    channels.write(writer, TOPIC_STATUS, sol.t_us, &status)
+}
+
+/// Replay `reader` with `cfg` and write the MCAP file to `out`.
+pub fn export_mcap<R: Read, W: Write + Seek>(
+    reader: SensorLogReader<R>,
+    cfg: &NavConfig,
+    out: W,
+    options: &McapOptions,
+) -> Result<McapSummary, McapExportError> {
+    let mut writer = mcap::Writer::new(out)?;
+    let image = writer.add_schema(
+        "foxglove.CompressedImage",
+        "jsonschema",
+        compressed_image_schema().as_bytes(),
+    )?;
+    let fix = writer.add_schema(
+        "foxglove.LocationFix",
+        "jsonschema",
+        location_fix_schema().as_bytes(),
+    )?;
+    let status = writer.add_schema("ianav.Status", "jsonschema", status_schema().as_bytes())?;
+    let none = BTreeMap::new();
+    let mut channels = Channels {
+        ids: BTreeMap::new(),
+        counts: BTreeMap::new(),
+    };
+    for (topic, schema) in [
+        (TOPIC_IMAGE, image),
+        (TOPIC_POSITION, fix),
+        (TOPIC_VISION_FIX, fix),
+        (TOPIC_STATUS, status),
+    ] {
+        let id = writer.add_channel(schema, topic, "json", &none)?;
+        channels.ids.insert(topic, id);
+    }
+    // The callbacks cannot both borrow the writer mutably: solutions are collected per
+    // event and written after it, in log order.
+    let pending: std::cell::RefCell<Vec<NavSolution>> = std::cell::RefCell::default();
+    let mut frames_seen = 0_u64;
+    let mut last_fix_t_us = None;
+    let mut next_solution_us = 0_u64;
+    let mut failure: Option<mcap::McapError> = None;
+    let replay = replay_with_events(
+        reader,
+        cfg,
+        |event, nav| {
+            if failure.is_some() {
+                return Ok(());
+            }
+            let result = (|| {
+                if let SensorEvent::Frame(f) = event {
+                    frames_seen += 1;
+                    if (frames_seen - 1).is_multiple_of(options.frame_every.max(1)) {
+                        let mut png = Vec::new();
+                        if image::write_buffer_with_format(
+                            &mut std::io::Cursor::new(&mut png),
+                            &f.pixels,
+                            f.width,
+                            f.height,
+                            image::ExtendedColorType::L8,
+                            image::ImageFormat::Png,
+                        )
+                        .is_ok()
+                        {
+                            let msg = serde_json::json!({
+                                "timestamp": stamp(f.t_us),
+                                "frame_id": "camera",
+                                "data": base64::engine::general_purpose::STANDARD.encode(&png),
+                                "format": "png",
+                            });
+                            channels.write(&mut writer, TOPIC_IMAGE, f.t_us, &msg)?;
+                        }
+                    }
+                }
+                if let Some(fix) = nav.vision_fix()
+                    && last_fix_t_us != Some(fix.t_us)
+                {
+                    last_fix_t_us = Some(fix.t_us);
+                    let msg = serde_json::json!({
+                        "timestamp": stamp(fix.t_us),
+                        "frame_id": "wgs84",
+                        "latitude": fix.pos.lat_rad.to_degrees(),
+                        "longitude": fix.pos.lon_rad.to_degrees(),
+                        "altitude": fix.pos.h_m,
+                        "position_covariance": UNKNOWN_COVARIANCE,
+                        "position_covariance_type": 0,
+                    });
+                    channels.write(&mut writer, TOPIC_VISION_FIX, fix.t_us, &msg)?;
+                }
+                for sol in pending.borrow_mut().drain(..) {
+                    write_solution(&mut channels, &mut writer, &sol, nav.stats())?;
+                }
+                Ok::<(), mcap::McapError>(())
+            })();
+            if let Err(e) = result {
+                failure = Some(e);
+            }
+            Ok(())
+        },
+        |sol| {
+            if sol.t_us >= next_solution_us {
+                next_solution_us = sol.t_us.saturating_add(options.period_us.max(1));
+                pending.borrow_mut().push(*sol);
+            }
+            Ok(())
+        },
+    )?;
+    if let Some(e) = failure {
+        return Err(e.into());
+    }
+    for sol in pending.borrow_mut().drain(..) {
+        write_solution(&mut channels, &mut writer, &sol, &replay.nav)?;
+    }
+    writer.finish()?;
+    Ok(McapSummary {
+        replay,
+        messages: channels.counts,
+    })
+}
