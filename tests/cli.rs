@@ -18,7 +18,7 @@ fn ianav(args: &[&str]) -> (bool, String, String) {
 fn help_names_every_subcommand_and_their_arguments() {
     let (ok, out, _) = ianav(&["--help"]);
     assert!(ok);
-    for sub in ["run", "check-config", "version"] {
+    for sub in ["run", "check-config", "replay", "export-mcap", "version"] {
         assert!(out.contains(sub), "{sub} missing from:\n{out}");
     }
     let (ok, out, _) = ianav(&["run", "--help"]);
@@ -186,4 +186,29 @@ fn check_config_refuses_what_run_refuses_with_the_same_error() {
         assert_eq!(run_err, check_err, "{name}");
     }
     std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `ianav export-mcap` on the committed replay log (no camera): an MCAP file with the format's
+/// magic at both ends and position and status messages; a missing log is a clear error.
+#[test]
+fn export_mcap_writes_a_file_and_counts_its_messages() {
+    let log = concat!(
+        env!("CARGO_MANIFEST_DIR"),
+        "/tests/data/replay/scenario2-short.bin"
+    );
+    let out = std::env::temp_dir().join(format!("ianav_cli_{}.mcap", std::process::id()));
+    let out_s = out.to_str().expect("a UTF-8 temp path");
+    let (ok, stdout, stderr) = ianav(&["export-mcap", log, "--out", out_s]);
+    assert!(ok, "{stderr}");
+    let bytes = std::fs::read(&out).expect("the MCAP file");
+    let _ = std::fs::remove_file(&out);
+    // MCAP's magic: 0x89 "MCAP0" \r \n, at both ends.
+    let magic = b"\x89MCAP0\r\n";
+    assert!(bytes.starts_with(magic) && bytes.ends_with(magic));
+    assert!(
+        stdout.contains("/ianav/position") && stdout.contains("/ianav/status"),
+        "{stdout}"
+    );
+    let (ok, _, stderr) = ianav(&["export-mcap", "/nonexistent.bin", "--out", out_s]);
+    assert!(!ok && stderr.contains("/nonexistent.bin"), "{stderr}");
 }
