@@ -324,8 +324,9 @@ async fn fly_vehicle(
         tokio::time::sleep(Duration::from_millis(10)).await;
     }
     tokio::time::sleep(Duration::from_millis(200)).await;
-    let counters = handle.shared.counters();
     common::stop_daemon(&handle, daemon_task).await;
+    // Read after the stop: the daemon may still record an event while it winds down.
+    let counters = handle.shared.counters();
     let bytes = relay.finish().await;
     let (daemon_msgs, stream_defects) = parse_stream(&bytes);
     let rows = read_rows(&dir.join("sitl.csv"));

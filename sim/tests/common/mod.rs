@@ -64,14 +64,17 @@ impl Relay {
         });
         let down = tokio::spawn(async move {
             let (mut log, mut buf) = (Vec::with_capacity(8 << 20), vec![0_u8; 65_536]);
+            // Keep every byte the daemon sends until it closes, also after the vehicle has
+            // gone (its last messages still count as published).
+            let mut vehicle_open = true;
             loop {
                 let n = match dr.read(&mut buf).await {
                     Ok(0) | Err(_) => break,
                     Ok(n) => n,
                 };
                 log.extend_from_slice(&buf[..n]);
-                if vw.write_all(&buf[..n]).await.is_err() {
-                    break;
+                if vehicle_open && vw.write_all(&buf[..n]).await.is_err() {
+                    vehicle_open = false;
                 }
             }
             log
