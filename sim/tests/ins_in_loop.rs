@@ -235,7 +235,9 @@ fn accel_model_residual() {
 /// The IMU noise check (`ianav::ins::imu_noise`) on the simulator's own IMU, whose noise is the
 /// one `InsConfig::default()` is configured for: in turbulent flight with turns it must measure
 /// the configured gyro noise (within the turbulence's share of the 100 Hz second differences)
-/// and never report the IMU as noisier than configured.
+/// and never report the IMU as noisier than configured. The navigator flying the aircraft
+/// adopts measured noise (`[ins.imu_noise] adopt`, on by default): on this IMU it must adopt
+/// nothing, so that every simulated result is the configured model's.
 #[test]
 fn imu_noise_check_measures_the_simulated_imu_as_configured() {
     use ianav::ins::imu_noise::{ImuNoiseMonitor, NOISY_RATIO};
@@ -283,5 +285,12 @@ fn imu_noise_check_measures_the_simulated_imu_as_configured() {
         obs.worst_accel_ratio < 0.1,
         "accel ×{}",
         obs.worst_accel_ratio
+    );
+    let nav = flight.navigator().expect("the INS flew the aircraft");
+    assert!(nav.config().ins.imu_noise.adopt);
+    assert_eq!(nav.stats().imu_noise_adoptions, 0, "{:?}", nav.stats());
+    assert_eq!(
+        nav.imu_noise_model(),
+        ianav::ins::imu_noise::ImuNoiseModel::from_config(&InsConfig::default())
     );
 }

@@ -419,6 +419,47 @@ pub struct InsConfig {
     /// Input validation bounds.
     #[serde(default)]
     pub limits: InputLimits,
+    /// Adopting the IMU's measured white noise (docs/INS.md "IMU noise adoption").
+    #[serde(default)]
+    pub imu_noise: ImuNoiseAdoptionConfig,
+}
+
+/// When the INS replaces the configured IMU noise by the measured one (`src/ins/imu_noise.rs`).
+/// The model is only ever raised: a configured R above the measured white noise often holds
+/// vibration or model error on purpose.
+#[derive(Debug, Clone, PartialEq, Serialize, Deserialize)]
+#[serde(deny_unknown_fields, default)]
+pub struct ImuNoiseAdoptionConfig {
+    /// Adopt the measured noise; `false` pins the configured model (the check still reports).
+    pub adopt: bool,
+    /// Measured over the model in use above which it is adopted (the report's threshold).
+    pub adopt_ratio: f64,
+    /// Airspeed above which the aircraft counts as flying, m/s: before, the measurement is the
+    /// sensor's own (no vibration, no gusts) and adopted up to the ceilings below; after, the
+    /// gyro and velocity random walk may grow by at most `max_flight_growth`.
+    pub flying_tas_mps: f64,
+    /// In flight, the adopted variances stay within this factor of those in use at take-off
+    /// (100 = 10× in σ): vibration raises the noise, a sensor fault must not make the INS
+    /// ignore its gyro.
+    pub max_flight_growth: f64,
+    /// Gyro R never adopted above this, (rad/s)² at the reference period.
+    pub max_gyro_var_rad2ps2: f64,
+    /// Accelerometer variance never adopted above this, (m/s²)² at the reference period.
+    pub max_accel_var_m2ps4: f64,
+}
+
+impl Default for ImuNoiseAdoptionConfig {
+    fn default() -> Self {
+        Self {
+            adopt: true,
+            adopt_ratio: 4.0,
+            flying_tas_mps: 10.0,
+            max_flight_growth: 100.0,
+            // σ 0.1 rad/s (5.7 °/s) and 2 m/s² per 10 ms sample: 40× PX4 SIH's gyro variance.
+            max_gyro_var_rad2ps2: 1e-2,
+            max_accel_var_m2ps4: 4.0,
+        }
+    }
 }
 
 fn default_reference_period_s() -> f64 {
@@ -442,6 +483,7 @@ impl Default for InsConfig {
             position: PositionFilterConfig::default(),
             alignment: AlignmentConfig::default(),
             limits: InputLimits::default(),
+            imu_noise: ImuNoiseAdoptionConfig::default(),
         }
     }
 }
@@ -543,6 +585,24 @@ impl InsConfig {
                 "must be at least 1",
             ));
         }
+        let n = &self.imu_noise;
+        if !(n.adopt_ratio.is_finite() && n.adopt_ratio >= 1.0) {
+            return Err(invalid(
+                "imu_noise.adopt_ratio",
+                n.adopt_ratio,
+                "must be at least 1",
+            ));
+        }
+        non_negative("imu_noise.flying_tas_mps", n.flying_tas_mps)?;
+        if !(n.max_flight_growth.is_finite() && n.max_flight_growth >= 1.0) {
+            return Err(invalid(
+                "imu_noise.max_flight_growth",
+                n.max_flight_growth,
+                "must be at least 1",
+            ));
+        }
+        positive("imu_noise.max_gyro_var_rad2ps2", n.max_gyro_var_rad2ps2)?;
+        positive("imu_noise.max_accel_var_m2ps4", n.max_accel_var_m2ps4)?;
         let l = &self.limits;
         positive("limits.max_specific_force_mps2", l.max_specific_force_mps2)?;
         positive("limits.max_angular_rate_rps", l.max_angular_rate_rps)?;

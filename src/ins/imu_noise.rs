@@ -9,6 +9,12 @@
 //! re-initialised; nothing told the operator why. The check only measures and reports; the
 //! configuration stays the operator's.
 //!
+//! Adoption (docs/INS.md "IMU noise adoption"): with `[ins.imu_noise] adopt`, a measured noise
+//! above `adopt_ratio` × the model in use replaces it ([`ImuNoiseModel::adopted`]): gyro R (and
+//! the body-rate Q̃ with it, so the rate state's lag stays the configured one), the velocity
+//! random walk, and on the ground the accelerometer's white R. The model only ever rises, up to
+//! ceilings, and in flight by a bounded factor over the model at take-off.
+//!
 //! The estimate: second differences `x[k] − 2 x[k−1] + x[k−2]` remove the motion (a turn's rate
 //! changes by far less than the noise from one sample to the next) and have 6 σ² for white
 //! noise; per-window variances over [`WINDOW_SAMPLES`], the median of the last
@@ -18,7 +24,7 @@ use std::collections::VecDeque;
 
 use nalgebra::Vector3;
 
-use super::InsConfig;
+use super::{ImuNoiseAdoptionConfig, InsConfig};
 use crate::sensors::ImuSample;
 
 /// Samples per variance window (1 s at 100 Hz).
@@ -65,6 +71,109 @@ impl ImuNoise {
     /// Whether either ratio exceeds `threshold`.
     pub fn exceeds(&self, threshold: f64) -> bool {
         self.gyro_ratio > threshold || self.accel_ratio > threshold
+    }
+}
+
+/// The IMU noise the filters use: the configured values, or those adopted from the measurement.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct ImuNoiseModel {
+    /// `[ins.attitude] r_gyro_rad2ps2`.
+    pub r_gyro_rad2ps2: f64,
+    /// `[ins.attitude] q_w_nb_rad2ps2`, scaled with the gyro R.
+    pub q_w_nb_rad2ps2: f64,
+    /// `[ins.attitude] r_accel_white_m2ps4`. The position filter's `r_accel_m2ps4` is left
+    /// alone: raised, it smooths the specific force and the fixes lag the INS in turns
+    /// (docs/PX4.md); the velocity random walk carries the accelerometer's noise there.
+    pub r_accel_white_m2ps4: f64,
+    /// `[ins.position] q_velocity_m2ps2`.
+    pub q_velocity_m2ps2: f64,
+}
+
+/// What one adoption did.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct Adoption {
+    /// The model from now on.
+    pub model: ImuNoiseModel,
+    /// A measured value was above its ceiling and the ceiling was adopted instead.
+    pub capped: bool,
+}
+
+impl ImuNoiseModel {
+    /// The model `cfg` configures.
+    pub fn from_config(cfg: &InsConfig) -> Self {
+        Self {
+            r_gyro_rad2ps2: cfg.attitude.r_gyro_rad2ps2,
+            q_w_nb_rad2ps2: cfg.attitude.q_w_nb_rad2ps2,
+            r_accel_white_m2ps4: cfg.attitude.r_accel_white_m2ps4,
+            q_velocity_m2ps2: cfg.position.q_velocity_m2ps2,
+        }
+    }
+
+    /// Write the model into `cfg`.
+    pub fn apply_to(&self, cfg: &mut InsConfig) {
+        cfg.attitude.r_gyro_rad2ps2 = self.r_gyro_rad2ps2;
+        cfg.attitude.q_w_nb_rad2ps2 = self.q_w_nb_rad2ps2;
+        cfg.attitude.r_accel_white_m2ps4 = self.r_accel_white_m2ps4;
+        cfg.position.q_velocity_m2ps2 = self.q_velocity_m2ps2;
+    }
+
+    /// The model after measuring `n`, if it must change. `at_takeoff` is the model in use when
+    /// the aircraft began to fly (`None` on the ground). Only rises: each quantity whose
+    /// measurement exceeds `adopt_ratio` × its value takes the measurement, capped by the
+    /// ceiling and, in flight, by `max_flight_growth` × its take-off value. In flight the
+    /// accelerometer's white R is left alone: the gusts' accelerations dominate the second
+    /// differences there (×15–19 the sensor's noise on the simulator in turbulence), and the
+    /// attitude filter models them apart (`r_accel_turbulence_m2ps4`, 10⁵× larger).
+    pub fn adopted(
+        &self,
+        n: &ImuNoise,
+        reference_period_s: f64,
+        at_takeoff: Option<&ImuNoiseModel>,
+        cfg: &ImuNoiseAdoptionConfig,
+    ) -> Option<Adoption> {
+        let mut next = *self;
+        let mut capped = false;
+        // `measured` against `current`: the new value, if adopted.
+        let mut raise = |measured: f64, current: f64, ceiling: f64| -> Option<f64> {
+            // NaN measurements compare false: never adopted.
+            if measured.partial_cmp(&(cfg.adopt_ratio * current))
+                != Some(std::cmp::Ordering::Greater)
+            {
+                return None;
+            }
+            let v = measured.min(ceiling);
+            if v <= current {
+                return None;
+            }
+            capped |= measured > ceiling;
+            Some(v)
+        };
+        let growth = |takeoff: fn(&ImuNoiseModel) -> f64| {
+            at_takeoff.map_or(f64::INFINITY, |m| cfg.max_flight_growth * takeoff(m))
+        };
+        let r_gyro = n.gyro_var_rad2ps2 * n.period_s / reference_period_s;
+        let gyro_ceiling = cfg.max_gyro_var_rad2ps2.min(growth(|m| m.r_gyro_rad2ps2));
+        if let Some(r) = raise(r_gyro, self.r_gyro_rad2ps2, gyro_ceiling) {
+            next.q_w_nb_rad2ps2 = self.q_w_nb_rad2ps2 * r / self.r_gyro_rad2ps2;
+            next.r_gyro_rad2ps2 = r;
+        }
+        // The velocity random walk white accelerometer noise causes per reference period.
+        let q_vel = n.accel_var_m2ps4 * n.period_s * reference_period_s;
+        let q_ceiling = (cfg.max_accel_var_m2ps4 * reference_period_s * reference_period_s)
+            .min(growth(|m| m.q_velocity_m2ps2));
+        if let Some(q) = raise(q_vel, self.q_velocity_m2ps2, q_ceiling) {
+            next.q_velocity_m2ps2 = q;
+        }
+        if at_takeoff.is_none() {
+            let r_accel = n.accel_var_m2ps4 * n.period_s / reference_period_s;
+            if let Some(r) = raise(r_accel, self.r_accel_white_m2ps4, cfg.max_accel_var_m2ps4) {
+                next.r_accel_white_m2ps4 = r;
+            }
+        }
+        (next != *self).then_some(Adoption {
+            model: next,
+            capped,
+        })
     }
 }
 
@@ -230,6 +339,79 @@ mod tests {
         let n = m.noise(&cfg).expect("an estimate");
         assert!((n.gyro_ratio - 1.0).abs() < 0.15, "{n:?}");
         assert!(!n.exceeds(QUIET_RATIO), "{n:?}");
+    }
+
+    fn measured(gyro_var: f64, accel_var: f64) -> ImuNoise {
+        ImuNoise {
+            gyro_var_rad2ps2: gyro_var,
+            accel_var_m2ps4: accel_var,
+            period_s: 0.004,
+            gyro_ratio: f64::NAN,
+            accel_ratio: f64::NAN,
+        }
+    }
+
+    #[test]
+    fn adoption_only_raises_above_the_ratio_and_keeps_the_lag() {
+        let cfg = InsConfig::default();
+        let policy = ImuNoiseAdoptionConfig::default();
+        let m = ImuNoiseModel::from_config(&cfg);
+        let per_sample = |r_ref: f64| r_ref * cfg.reference_period_s / 0.004;
+        // Quieter than configured, or noisier by less than the ratio: nothing.
+        for f in [0.01, 1.0, 3.9] {
+            let n = measured(per_sample(f * m.r_gyro_rad2ps2), 0.0);
+            assert_eq!(m.adopted(&n, cfg.reference_period_s, None, &policy), None);
+        }
+        // PX4 SIH on the ground: gyro ×84; the accelerometer σ 0.65 m/s² per 250 Hz sample.
+        let n = measured(per_sample(84.0 * m.r_gyro_rad2ps2), 0.42);
+        let a = m
+            .adopted(&n, cfg.reference_period_s, None, &policy)
+            .unwrap();
+        assert!(!a.capped);
+        assert!((a.model.r_gyro_rad2ps2 / m.r_gyro_rad2ps2 / 84.0 - 1.0).abs() < 1e-9);
+        let lag = |x: &ImuNoiseModel| x.q_w_nb_rad2ps2 / x.r_gyro_rad2ps2;
+        assert!((lag(&a.model) / lag(&m) - 1.0).abs() < 1e-12);
+        // On the ground the accelerometer's white R is the measured one at the reference
+        // period; its velocity random walk (1.7e-5) is under 4 × q_velocity (1e-5).
+        assert!((a.model.r_accel_white_m2ps4 - 0.42 * 0.4).abs() < 1e-9);
+        assert_eq!(a.model.q_velocity_m2ps2, m.q_velocity_m2ps2);
+        // Adopting again what was adopted changes nothing.
+        let again = a.model.adopted(&n, cfg.reference_period_s, None, &policy);
+        assert_eq!(again, None);
+    }
+
+    #[test]
+    fn in_flight_the_accelerometer_r_stays_and_growth_and_ceilings_bound_the_rest() {
+        let cfg = InsConfig::default();
+        let policy = ImuNoiseAdoptionConfig::default();
+        let m = ImuNoiseModel::from_config(&cfg);
+        let ref_s = cfg.reference_period_s;
+        // Gusts: the accelerometer ×19 the white R (the simulator in turbulence), its velocity
+        // random walk far under q_velocity: nothing, in flight.
+        let n = measured(0.0, 19.0 * m.r_accel_white_m2ps4 * ref_s / 0.004);
+        assert_eq!(m.adopted(&n, ref_s, Some(&m), &policy), None);
+        // ... the same on the ground would be adopted.
+        assert!(m.adopted(&n, ref_s, None, &policy).is_some());
+        // In flight the gyro may grow ×100 over the take-off model.
+        let n = measured(1e4 * m.r_gyro_rad2ps2 * ref_s / 0.004, 0.0);
+        let a = m.adopted(&n, ref_s, Some(&m), &policy).unwrap();
+        assert!(a.capped);
+        assert!((a.model.r_gyro_rad2ps2 / m.r_gyro_rad2ps2 - 100.0).abs() < 1e-9);
+        // On the ground only the absolute ceiling holds.
+        let n = measured(1.0 * ref_s / 0.004, 100.0 * ref_s / 0.004);
+        let a = m.adopted(&n, ref_s, None, &policy).unwrap();
+        assert!(a.capped);
+        assert_eq!(a.model.r_gyro_rad2ps2, policy.max_gyro_var_rad2ps2);
+        assert_eq!(a.model.r_accel_white_m2ps4, policy.max_accel_var_m2ps4);
+        assert_eq!(
+            a.model.q_velocity_m2ps2,
+            policy.max_accel_var_m2ps4 * ref_s * ref_s
+        );
+        // Written into a configuration and read back.
+        let mut c = cfg.clone();
+        a.model.apply_to(&mut c);
+        assert_eq!(ImuNoiseModel::from_config(&c), a.model);
+        assert!(c.validate().is_ok());
     }
 
     #[test]

@@ -32,8 +32,8 @@ mod types;
 use nalgebra::{Matrix2, Matrix3, Vector3};
 
 pub use config::{
-    AirDataFilterConfig, AlignmentConfig, AttitudeFilterConfig, InputLimits, InsConfig,
-    InsConfigError, MAX_BODY_RATE_LAG_S, PositionFilterConfig,
+    AirDataFilterConfig, AlignmentConfig, AttitudeFilterConfig, ImuNoiseAdoptionConfig,
+    InputLimits, InsConfig, InsConfigError, MAX_BODY_RATE_LAG_S, PositionFilterConfig,
 };
 
 use crate::env::magnetic::{MagneticGrid, MagneticModel};
@@ -157,6 +157,12 @@ impl Ins {
     /// The configuration in use.
     pub fn config(&self) -> &InsConfig {
         &self.cfg
+    }
+
+    /// Use `model` for the IMU's noise from the next step on (the filters read their R and Q̃
+    /// each step; nothing else is touched).
+    pub fn set_imu_noise(&mut self, model: &imu_noise::ImuNoiseModel) {
+        model.apply_to(&mut self.cfg);
     }
 
     /// Whether the INS has switched to GNSS-denied mode.

@@ -27,7 +27,7 @@ pub use vision::{
     ComparedVision, ComparedVisionError, VisionDone, VisionRestart, VisionTask, VisualSystemView,
 };
 
-use crate::ins::imu_noise::{ImuNoise, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
+use crate::ins::imu_noise::{ImuNoise, ImuNoiseModel, ImuNoiseMonitor, NOISY_RATIO, QUIET_RATIO};
 use crate::ins::{Ins, InsConfig, InsError, InsInit, InsSolution};
 use crate::sensors::{Frame, HeightAboveTerrain, SensorEvent, VisionApplied};
 use crate::vision::camera::{CameraConfig, CameraConfigError, Mounting};
@@ -188,6 +188,10 @@ pub struct NavigatorStats {
     /// Times the IMU was found noisier than configured, or [`IMU_NOISE_ESCALATION`] times
     /// noisier than at the last report (see [`Navigator::imu_noise`]).
     pub imu_noisier_than_configured: u64,
+    /// Times the INS adopted the IMU's measured noise (`[ins.imu_noise] adopt`).
+    pub imu_noise_adoptions: u64,
+    /// ... of which a measured value was above its ceiling (the ceiling was adopted).
+    pub imu_noise_capped: u64,
     /// Visual fixes taken into the fused position ([`NavConfig::fusion`]).
     pub fused_vision_fixes: u64,
     /// Visual fixes without an INS pose at their exposure, not fused.
@@ -221,6 +225,10 @@ pub struct Navigator {
     imu_noisy: bool,
     /// The worst ratio when the IMU was last reported noisier than configured.
     imu_noisy_ratio: f64,
+    /// The INS configuration in use: the configured one with the adopted IMU noise.
+    ins_cfg: InsConfig,
+    /// The IMU noise model in use when the aircraft began to fly (`None` on the ground).
+    imu_model_at_takeoff: Option<ImuNoiseModel>,
     /// The visual navigation systems (with a camera; out with a [`VisionTask`] while their
     /// deferred frame runs).
     visual: Option<Box<VisualSystems>>,
@@ -301,6 +309,8 @@ impl Navigator {
             imu_noise: ImuNoiseMonitor::default(),
             imu_noisy: false,
             imu_noisy_ratio: 0.0,
+            ins_cfg: cfg.ins.clone(),
+            imu_model_at_takeoff: None,
             vision_status: visual
                 .as_ref()
                 .map_or(VisionStatus::INACTIVE, |v| *v.status()),
@@ -318,7 +328,7 @@ impl Navigator {
     /// feed events and let [`policy`] decide). A failed initialisation leaves the previous
     /// state.
     pub fn initialise(&mut self, init: &InsInit) -> Result<(), InsError> {
-        let ins = Ins::new(&self.cfg.ins, init)?;
+        let ins = Ins::new(&self.ins_cfg, init)?;
         if self.ins.is_some() {
             self.reset_counter = self.reset_counter.wrapping_add(1);
         }
@@ -390,6 +400,13 @@ impl Navigator {
                 return None;
             }
             SensorEvent::Imu(s) => self.check_imu_noise(s),
+            SensorEvent::Air(a)
+                if self.imu_model_at_takeoff.is_none()
+                    && a.tas_mps.is_finite()
+                    && a.tas_mps > self.cfg.ins.imu_noise.flying_tas_mps =>
+            {
+                self.imu_model_at_takeoff = Some(ImuNoiseModel::from_config(&self.ins_cfg));
+            }
             _ => {}
         }
         let running = self.ins.as_ref().map(|ins| Running {
@@ -545,7 +562,13 @@ impl Navigator {
     }
     /// The IMU's measured white noise against the configuration (`None` until ~5 s of IMU).
     pub fn imu_noise(&self) -> Option<ImuNoise> {
-        self.imu_noise.noise(&self.cfg.ins)
+        self.imu_noise.noise(&self.ins_cfg)
+    }
+
+    /// The IMU noise the INS uses: the configured model, or the one adopted from the
+    /// measurement ([`NavigatorStats::imu_noise_adoptions`]).
+    pub fn imu_noise_model(&self) -> ImuNoiseModel {
+        ImuNoiseModel::from_config(&self.ins_cfg)
     }
 
     /// Whether the IMU is currently noisier than configured (ratio over
@@ -559,7 +582,27 @@ impl Navigator {
         if !self.imu_noise.push(s) {
             return;
         }
-        let Some(n) = self.imu_noise() else { return };
+        let Some(mut n) = self.imu_noise() else {
+            return;
+        };
+        let policy = &self.cfg.ins.imu_noise;
+        if policy.adopt
+            && let Some(a) = ImuNoiseModel::from_config(&self.ins_cfg).adopted(
+                &n,
+                self.ins_cfg.reference_period_s,
+                self.imu_model_at_takeoff.as_ref(),
+                policy,
+            )
+        {
+            a.model.apply_to(&mut self.ins_cfg);
+            if let Some(ins) = self.ins.as_mut() {
+                ins.set_imu_noise(&a.model);
+            }
+            self.stats.imu_noise_adoptions += 1;
+            self.stats.imu_noise_capped += u64::from(a.capped);
+            // The ratios against the model now in use (a capped one stays reported).
+            n = self.imu_noise().unwrap_or(n);
+        }
         let worst = n.gyro_ratio.max(n.accel_ratio);
         // Reported again when it doubles: the first report often comes on the ground, before
         // the motor and the airflow add their vibration (PX4 SIH: ×80 disarmed, ×4000 flying).
@@ -776,7 +819,8 @@ mod tests {
     /// report, then one more when the ratio has doubled; none while it stays there.
     #[test]
     fn a_noisy_imu_is_reported_and_reported_again_when_it_gets_worse() {
-        let cfg = InsConfig::default();
+        let mut cfg = InsConfig::default();
+        cfg.imu_noise.adopt = false;
         let mut nav = Navigator::new(&NavConfig::new(cfg.clone(), 2026.5)).unwrap();
         // Deterministic ±σ noise (white enough for second differences: a pseudo-random sign).
         let mut state = 0x2545_f491_4f6c_dd1d_u64;
@@ -811,6 +855,87 @@ mod tests {
         assert!((nav.imu_noise().unwrap().gyro_ratio / 1000.0 - 1.0).abs() < 0.1);
         // The events count as received before the initialisation, as any other.
         assert_eq!(nav.stats().events_before_init, 8_000);
+        assert_eq!(nav.stats().imu_noise_adoptions, 0);
+        assert_eq!(nav.imu_noise_model(), ImuNoiseModel::from_config(&cfg));
+    }
+
+    /// Adoption: on the ground the measured noise replaces the configured one, in the running
+    /// INS too; in flight it may grow up to `max_flight_growth` × the take-off model, beyond
+    /// which the ceiling is adopted and the IMU stays reported.
+    #[test]
+    fn the_measured_imu_noise_is_adopted_on_the_ground_and_bounded_in_flight() {
+        let cfg = InsConfig::default();
+        let policy = cfg.imu_noise.clone();
+        let mut nav = Navigator::new(&NavConfig::new(cfg.clone(), 2026.5)).unwrap();
+        nav.initialise(&init()).unwrap();
+        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
+        let mut sign = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            if state & 1 == 0 { 1.0 } else { -1.0 }
+        };
+        let configured = ImuNoiseModel::from_config(&cfg);
+        let mut push = |nav: &mut Navigator, k: u64, gyro_factor: f64| {
+            let sigma = (gyro_factor * configured.r_gyro_rad2ps2).sqrt();
+            let mut v = || Vector3::new(sign(), sign(), sign()) * sigma;
+            let imu = ImuSample {
+                t_us: k * 10_000,
+                gyro_rps: v(),
+                accel_mps2: Vector3::new(0.0, 0.0, -9.81),
+            };
+            nav.push(&SensorEvent::Imu(imu));
+        };
+        // On the ground, ×10 the configured gyro variance: adopted, not reported.
+        for k in 0..4_000 {
+            push(&mut nav, k, 10.0);
+        }
+        let ground = nav.imu_noise_model();
+        assert_eq!(nav.stats().imu_noise_adoptions, 1);
+        assert!((ground.r_gyro_rad2ps2 / configured.r_gyro_rad2ps2 / 10.0 - 1.0).abs() < 0.1);
+        // The body-rate Q̃ keeps its ratio to the gyro R (the same lag).
+        let lag_ratio = |m: &ImuNoiseModel| m.q_w_nb_rad2ps2 / m.r_gyro_rad2ps2;
+        assert!((lag_ratio(&ground) / lag_ratio(&configured) - 1.0).abs() < 1e-12);
+        assert_eq!(
+            nav.ins.as_ref().unwrap().config().attitude.r_gyro_rad2ps2,
+            ground.r_gyro_rad2ps2
+        );
+        assert!(!nav.imu_noisier_than_configured());
+        assert_eq!(nav.stats().imu_noisier_than_configured, 0);
+        // Take-off, then ×5000 the configured (×500 the ground model): capped at ×100 the
+        // take-off model, and reported (×5 over what is in use).
+        let air = |t_us| {
+            SensorEvent::Air(AirSample {
+                t_us,
+                tas_mps: 25.0,
+                aoa_rad: None,
+                aos_rad: None,
+                p_pa: 90_000.0,
+                temp_k: 280.0,
+            })
+        };
+        nav.push(&air(40_000_005));
+        for k in 4_000..8_000 {
+            push(&mut nav, k, 5000.0);
+        }
+        let flight = nav.imu_noise_model();
+        assert_eq!(
+            flight.r_gyro_rad2ps2,
+            policy.max_flight_growth * ground.r_gyro_rad2ps2
+        );
+        assert!(nav.stats().imu_noise_capped >= 1);
+        assert!(nav.imu_noisier_than_configured());
+        let r = nav.imu_noise().unwrap().gyro_ratio;
+        assert!((r / 5.0 - 1.0).abs() < 0.15, "{r}");
+        // The accelerometer held still: nothing adopted for it.
+        assert_eq!(flight.q_velocity_m2ps2, configured.q_velocity_m2ps2);
+        assert_eq!(flight.r_accel_white_m2ps4, configured.r_accel_white_m2ps4);
+        // A re-initialised INS starts with the model in use.
+        nav.initialise(&init()).unwrap();
+        assert_eq!(
+            nav.ins.as_ref().unwrap().config().attitude.r_gyro_rad2ps2,
+            flight.r_gyro_rad2ps2
+        );
     }
 
     #[test]
