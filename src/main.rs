@@ -281,6 +281,14 @@ async fn run(cfg: ianav::daemon::config::DaemonConfig) -> anyhow::Result<()> {
             "IMU received → solution written latency"
         );
     }
+    if let Some((p50, p99, max)) = handle.shared.frame_latency_percentiles() {
+        tracing::info!(
+            p50_us = p50,
+            p99_us = p99,
+            max_us = max,
+            "frame received → visual result applied latency"
+        );
+    }
     let result = match ended {
         Some(r) => r,
         None => {

@@ -260,6 +260,7 @@ pub fn log_counters(c: &Counters) {
         restarts = c.worker_restarts,
         latency_samples = c.latency_samples,
         latency_max_us = c.latency_max_us,
+        frame_latency_max_us = c.frame_latency_max_us,
         refused = %c.rejections(),
         "counters"
     );

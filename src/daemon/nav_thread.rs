@@ -105,7 +105,8 @@ pub enum NavInput {
 #[derive(Debug)]
 pub struct FrameQueue {
     cap: usize,
-    q: Mutex<VecDeque<Frame>>,
+    /// Frames with the instant each was queued (for the frame → result latency).
+    q: Mutex<VecDeque<(Frame, Instant)>>,
 }
 
 impl FrameQueue {
@@ -128,12 +129,12 @@ impl FrameQueue {
             q.pop_front();
             dropped += 1;
         }
-        q.push_back(f);
+        q.push_back((f, Instant::now()));
         dropped
     }
 
-    /// Take every queued frame, oldest first.
-    pub fn drain(&self) -> Vec<Frame> {
+    /// Take every queued frame with the instant it was queued, oldest first.
+    pub fn drain(&self) -> Vec<(Frame, Instant)> {
         let mut q = self
             .q
             .lock()
@@ -243,8 +244,11 @@ pub fn spawn(
             let _exit = exit;
             let mut since_sync = 0_u32;
             let mut noisy_reported = 0_u64;
+            let mut adoptions_reported = 0_u64;
             let mut starts_logged = 0_u64;
             let mut merge = FrameMerge::new(frames.cap);
+            // When each waiting or running frame was received (exposure time, instant).
+            let mut arrivals: VecDeque<(u64, Instant)> = VecDeque::new();
             let mut vision = VisionWorker::start(&nav);
             let feed_frame = |nav: &mut Navigator,
                               recorder: &mut Option<Recorder>,
@@ -270,14 +274,30 @@ pub fn spawn(
                         super::FaultKind::Stop => return,
                     }
                 }
-                for f in frames.drain() {
+                for (f, at) in frames.drain() {
+                    if arrivals.len() >= 4 * frames.cap + 8 {
+                        arrivals.pop_front();
+                    }
+                    arrivals.push_back((f.t_us, at));
                     let dropped = merge.add(f);
                     if dropped > 0 {
                         shared.count(|c| c.frames_dropped += dropped);
                     }
                 }
-                if let Some(w) = vision.as_mut() {
-                    w.collect(&mut nav, &mut recorder, &shared);
+                if let Some(w) = vision.as_mut()
+                    && let Some(t_us) = w.collect(&mut nav, &mut recorder, &shared)
+                {
+                    // Frames up to this one are done with (applied, refused or dropped).
+                    while let Some(&(t, at)) = arrivals.front()
+                        && t <= t_us
+                    {
+                        arrivals.pop_front();
+                        if t == t_us {
+                            shared.record_frame_latency(
+                                u64::try_from(at.elapsed().as_micros()).unwrap_or(u64::MAX),
+                            );
+                        }
+                    }
                 }
                 // Before the INS runs there is no pose for a frame's time to wait for.
                 if !nav.is_initialised() {
@@ -356,6 +376,10 @@ pub fn spawn(
                 if since_sync >= 50 || rx.is_empty() {
                     since_sync = 0;
                     let (n, i) = (*nav.stats(), nav.ins_stats().copied());
+                    if n.imu_noise_adoptions > adoptions_reported {
+                        adoptions_reported = n.imu_noise_adoptions;
+                        log_imu_noise_adoption(&nav, n.imu_noise_capped);
+                    }
                     if n.imu_noisier_than_configured > noisy_reported {
                         noisy_reported = n.imu_noisier_than_configured;
                         if let Some(m) = nav.imu_noise() {
@@ -364,10 +388,13 @@ pub fn spawn(
                                 gyro_ratio = m.gyro_ratio,
                                 accel_ratio = m.accel_ratio,
                                 period_s = m.period_s,
-                                "IMU noisier than configured: the INS over-trusts its \
-                                 propagation; set [ins.attitude] r_gyro_rad2ps2 ≥ {:.2e} \
-                                 with q_w_nb_rad2ps2 ≥ {:.2e}, and [ins.position] \
-                                 q_velocity_m2ps2 ≥ {:.2e} (docs/INS.md)",
+                                adopting = cfg.imu_noise.adopt,
+                                "IMU noisier than the INS's model (beyond what \
+                                 [ins.imu_noise] adopts, or adoption off): the INS \
+                                 over-trusts its propagation; set [ins.attitude] \
+                                 r_gyro_rad2ps2 ≥ {:.2e} with q_w_nb_rad2ps2 ≥ {:.2e}, and \
+                                 [ins.position] q_velocity_m2ps2 ≥ {:.2e}, or find the \
+                                 vibration (docs/INS.md)",
                                 m.matching_r_gyro_rad2ps2(cfg),
                                 crate::ins::AttitudeFilterConfig::matching_q_w_nb_rad2ps2(
                                     m.matching_r_gyro_rad2ps2(cfg)
@@ -462,15 +489,23 @@ impl VisionWorker {
         }
     }
 
-    /// Hand a finished frame back to the navigator and record its marker.
-    fn collect(&mut self, nav: &mut Navigator, recorder: &mut Option<Recorder>, shared: &Shared) {
+    /// Hand a finished frame back to the navigator and record its marker; the frame's exposure
+    /// time when one was applied.
+    fn collect(
+        &mut self,
+        nav: &mut Navigator,
+        recorder: &mut Option<Recorder>,
+        shared: &Shared,
+    ) -> Option<u64> {
         match self.done.try_recv() {
             Ok(Ok(done)) => {
+                let t_us = done.frame_t_us();
                 if let Some(marker) = nav.apply_vision(done)
                     && let Some(r) = recorder.as_mut()
                 {
                     r.record(&marker, shared);
                 }
+                return Some(t_us);
             }
             Ok(Err(panic)) => {
                 self.tasks = None;
@@ -491,6 +526,7 @@ impl VisionWorker {
                 }
             }
         }
+        None
     }
 }
 
@@ -523,6 +559,24 @@ fn log_start(nav: &Navigator, shared: &Shared) {
         StartKind::Flying => tracing::info!("flying: INS started again for flight"),
         StartKind::GnssBack => tracing::warn!("GNSS back for 5 s: INS re-initialised at the fix"),
     }
+}
+
+/// The daemon's log line for an adoption of the IMU's measured noise (docs/INS.md "IMU noise
+/// adoption"): the model now in use against the configured one.
+fn log_imu_noise_adoption(nav: &Navigator, capped: u64) {
+    let configured = crate::ins::imu_noise::ImuNoiseModel::from_config(&nav.config().ins);
+    let m = nav.imu_noise_model();
+    tracing::warn!(
+        r_gyro_rad2ps2 = m.r_gyro_rad2ps2,
+        gyro_factor = m.r_gyro_rad2ps2 / configured.r_gyro_rad2ps2,
+        q_w_nb_rad2ps2 = m.q_w_nb_rad2ps2,
+        q_velocity_m2ps2 = m.q_velocity_m2ps2,
+        q_velocity_factor = m.q_velocity_m2ps2 / configured.q_velocity_m2ps2,
+        r_accel_white_m2ps4 = m.r_accel_white_m2ps4,
+        capped,
+        "INS adopted the IMU's measured noise (pin the configured model with \
+         [ins.imu_noise] adopt = false)"
+    );
 }
 
 #[cfg(test)]
@@ -680,7 +734,7 @@ mod tests {
         assert_eq!(q.push(frame(1)), 0);
         assert_eq!(q.push(frame(2)), 0);
         assert_eq!(q.push(frame(3)), 1);
-        let t: Vec<u64> = q.drain().iter().map(|f| f.t_us).collect();
+        let t: Vec<u64> = q.drain().iter().map(|(f, _)| f.t_us).collect();
         assert_eq!(t, vec![2, 3]);
         assert!(q.drain().is_empty());
     }

@@ -180,6 +180,10 @@ pub struct Counters {
     /// Largest latency from the reception of an IMU message to the socket write of the
     /// solution computed from it, µs.
     pub latency_max_us: u64,
+    /// Visual results applied whose latency from the frame's reception was measured.
+    pub frame_latency_samples: u64,
+    /// Largest latency from a frame's reception to its visual result applied, µs.
+    pub frame_latency_max_us: u64,
 }
 
 /// Latencies kept for percentiles (a ring of the most recent ones).
@@ -248,6 +252,30 @@ pub struct Shared {
     counters: Mutex<Counters>,
     state: Mutex<State>,
     latencies_us: Mutex<Vec<u32>>,
+    frame_latencies_us: Mutex<Vec<u32>>,
+}
+
+/// Keep `us` in a ring of the [`LATENCY_RING`] most recent latencies (`n`: samples so far).
+fn keep_latency(ring: &Mutex<Vec<u32>>, n: u64, us: u64) {
+    let mut ring = lock(ring);
+    let v = u32::try_from(us).unwrap_or(u32::MAX);
+    if ring.len() < LATENCY_RING {
+        ring.push(v);
+    } else {
+        let i = usize::try_from(n % LATENCY_RING as u64).unwrap_or(0);
+        ring[i] = v;
+    }
+}
+
+/// (p50, p99, max) of a ring of latencies.
+fn percentiles(ring: &Mutex<Vec<u32>>) -> Option<(u32, u32, u32)> {
+    let mut v = lock(ring).clone();
+    if v.is_empty() {
+        return None;
+    }
+    v.sort_unstable();
+    let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
+    Some((at(0.5), at(0.99), at(1.0)))
 }
 
 fn lock<T>(m: &Mutex<T>) -> MutexGuard<'_, T> {
@@ -268,31 +296,32 @@ impl Shared {
 
     /// Record one IMU → socket latency.
     pub fn record_latency(&self, us: u64) {
-        let n = {
-            let mut c = lock(&self.counters);
+        let n = self.count(|c| {
             c.latency_max_us = c.latency_max_us.max(us);
             c.latency_samples += 1;
             c.latency_samples
-        };
-        let mut ring = lock(&self.latencies_us);
-        let v = u32::try_from(us).unwrap_or(u32::MAX);
-        if ring.len() < LATENCY_RING {
-            ring.push(v);
-        } else {
-            let i = usize::try_from(n % LATENCY_RING as u64).unwrap_or(0);
-            ring[i] = v;
-        }
+        });
+        keep_latency(&self.latencies_us, n, us);
     }
 
     /// (p50, p99, max) of the recent latencies, µs (`None` without samples).
     pub fn latency_percentiles(&self) -> Option<(u32, u32, u32)> {
-        let mut v = lock(&self.latencies_us).clone();
-        if v.is_empty() {
-            return None;
-        }
-        v.sort_unstable();
-        let at = |q: f64| v[((v.len() - 1) as f64 * q).round() as usize];
-        Some((at(0.5), at(0.99), at(1.0)))
+        percentiles(&self.latencies_us)
+    }
+
+    /// Record one frame received → visual result applied latency.
+    pub fn record_frame_latency(&self, us: u64) {
+        let n = self.count(|c| {
+            c.frame_latency_max_us = c.frame_latency_max_us.max(us);
+            c.frame_latency_samples += 1;
+            c.frame_latency_samples
+        });
+        keep_latency(&self.frame_latencies_us, n, us);
+    }
+
+    /// (p50, p99, max) of the recent frame → visual result latencies, µs.
+    pub fn frame_latency_percentiles(&self) -> Option<(u32, u32, u32)> {
+        percentiles(&self.frame_latencies_us)
     }
 
     /// Read or update the state.

@@ -1,6 +1,10 @@
 //! What the end-to-end tests of the daemon beside the SITL vehicle share: accepting the two
 //! connections, the relay between them that keeps the daemon's bytes, and the check that the
 //! daemon's recording replays to what it published.
+#![allow(
+    dead_code,
+    reason = "each test crate that includes this module uses a part of it"
+)]
 
 use std::time::Duration;
 
