@@ -22,6 +22,13 @@ variance, their mean square):
 
     tools/fit_vision_sigma.py --published out/seed1 out/seed2 ...
 
+The run directories are large (navigation.csv at 10 Hz); --extract OUTDIR writes, per run
+directory, the columns this check reads at 1 Hz (`OUTDIR/<run name>.csv`), small enough to
+commit, and --published also reads such files:
+
+    tools/fit_vision_sigma.py --extract docs/results/fused-s2-mx/gap out/gap_*
+    tools/fit_vision_sigma.py --published docs/results/fused-s2-mx/gap/*.csv
+
 Only the standard library: it runs wherever the run files are.
 """
 
@@ -141,11 +148,35 @@ def nees_report(name, runs, model):
     )
 
 
+EXTRACT_COLUMNS = ["t_s", "gnss_denied", "err_hor_m", "sigma_n_m", "sigma_e_m"]
+
+
+def extract(out_dir, directories):
+    """The columns `published_nees` reads, at 1 Hz, one file per run directory."""
+    os.makedirs(out_dir, exist_ok=True)
+    for d in directories:
+        src = os.path.join(d, "navigation.csv")
+        dst = os.path.join(out_dir, os.path.basename(os.path.normpath(d)) + ".csv")
+        with open(src) as f, open(dst, "w") as out:
+            header = f.readline().strip().split(",")
+            col = [header.index(c) for c in EXTRACT_COLUMNS]
+            out.write(",".join(EXTRACT_COLUMNS) + "\n")
+            next_t = -math.inf
+            for line in f:
+                v = line.strip().split(",")
+                t = float(v[col[0]])
+                if t + 1e-6 < next_t:
+                    continue
+                next_t = math.floor(t + 1e-6) + 1.0
+                out.write(",".join(v[i] for i in col) + "\n")
+        print(f"{src} -> {dst}")
+
+
 def published_nees(directories):
     """NEES of the published position after the loss, per run and over all runs."""
     values = []
     for d in directories:
-        path = os.path.join(d, "navigation.csv")
+        path = d if d.endswith(".csv") else os.path.join(d, "navigation.csv")
         with open(path) as f:
             header = f.readline().strip().split(",")
             col = {name: i for i, name in enumerate(header)}
@@ -177,8 +208,13 @@ def main():
     ap.add_argument("--model", help="sigma0_m,q_m2_per_m,k_per_m to check instead")
     ap.add_argument("--seeds", default="1-100", help="seed range used, inclusive (A-B)")
     ap.add_argument("--published", action="store_true",
-                    help="the directories are `ianav-sim run --fused` outputs")
+                    help="the directories are `ianav-sim run --fused` outputs (or --extract files)")
+    ap.add_argument("--extract", metavar="OUTDIR",
+                    help="write the --published columns of each run directory at 1 Hz to OUTDIR")
     args = ap.parse_args()
+    if args.extract:
+        extract(args.extract, args.dirs)
+        return
     if args.published:
         published_nees(args.dirs)
         return
