@@ -223,6 +223,7 @@ fn start_navigation(
         navigator,
         recorder,
         events_rx,
+        events.downgrade(),
         frames.clone(),
         latest_tx,
         publisher,

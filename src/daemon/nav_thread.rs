@@ -99,6 +99,9 @@ pub enum NavInput {
     /// Frames are waiting in the [`FrameQueue`] (sent with `try_send`: when the channel is
     /// full, events are flowing and the frames are taken with them).
     FramesReady,
+    /// The vision thread has finished a frame: take its result now rather than at the next
+    /// event (sent like `FramesReady`).
+    VisionDone,
 }
 
 /// Bounded frame queue, oldest dropped first.
@@ -230,6 +233,7 @@ pub fn spawn(
     mut nav: Navigator,
     mut recorder: Option<Recorder>,
     mut rx: mpsc::Receiver<NavInput>,
+    wake: mpsc::WeakSender<NavInput>,
     frames: Arc<FrameQueue>,
     latest: watch::Sender<Option<Latest>>,
     mut publisher: super::publish::Publisher,
@@ -249,7 +253,7 @@ pub fn spawn(
             let mut merge = FrameMerge::new(frames.cap);
             // When each waiting or running frame was received (exposure time, instant).
             let mut arrivals: VecDeque<(u64, Instant)> = VecDeque::new();
-            let mut vision = VisionWorker::start(&nav);
+            let mut vision = VisionWorker::start(&nav, wake);
             let feed_frame = |nav: &mut Navigator,
                               recorder: &mut Option<Recorder>,
                               vision: &mut Option<VisionWorker>,
@@ -306,7 +310,7 @@ pub fn spawn(
                     }
                 }
                 match input {
-                    NavInput::FramesReady => {}
+                    NavInput::FramesReady | NavInput::VisionDone => {}
                     NavInput::Event(ev, rx_at) => {
                         while let Some(f) = merge.pop_due(ev.t_us()) {
                             feed_frame(&mut nav, &mut recorder, &mut vision, f);
@@ -318,6 +322,11 @@ pub fn spawn(
                             r.record(&ev, &shared);
                         }
                         let sol = nav.push(&ev);
+                        // A frame that waited for the INS to reach its time becomes a task
+                        // at an IMU step, not at a frame.
+                        if let Some(w) = vision.as_mut() {
+                            w.dispatch(&mut nav);
+                        }
                         if nav.stats().initialisations > starts_logged {
                             starts_logged = nav.stats().initialisations;
                             log_start(&nav, &shared);
@@ -441,7 +450,9 @@ struct VisionWorker {
 impl VisionWorker {
     /// The worker, when the navigator defers its vision; `None` otherwise (or when the thread
     /// cannot be started: logged, and the frames are then counted busy).
-    fn start(nav: &Navigator) -> Option<Self> {
+    /// `wake`: the navigation thread's input, told when a frame is done (weak: the thread
+    /// ends when the link and the camera have stopped, whatever the worker holds).
+    fn start(nav: &Navigator, wake: mpsc::WeakSender<NavInput>) -> Option<Self> {
         let cfg = nav.config();
         if !(cfg.vision_deferred && cfg.camera.is_some()) {
             return None;
@@ -458,6 +469,9 @@ impl VisionWorker {
                     let failed = result.is_err();
                     if done_tx.send(result).is_err() || failed {
                         return;
+                    }
+                    if let Some(tx) = wake.upgrade() {
+                        let _ = tx.try_send(NavInput::VisionDone);
                     }
                 }
             });
@@ -665,6 +679,7 @@ mod tests {
             nav,
             Some(recorder),
             rx,
+            tx.downgrade(),
             queue.clone(),
             latest,
             publisher,
