@@ -59,6 +59,7 @@ mod atlas;
 mod fixed;
 mod ground;
 mod intersect;
+mod lens;
 mod lod;
 mod pass;
 mod rays;
@@ -76,6 +77,7 @@ use atlas::AlbedoLevel;
 pub use atlas::AtlasCache;
 use ground::GroundBlock;
 use intersect::{HeightTable, Scene, intersect, monotone};
+use lens::LensRemap;
 use lod::lod_footprint;
 use pass::{MainPass, has_avx2};
 use rays::{LocalMap, Ray, RowRays};
@@ -207,12 +209,15 @@ pub struct Renderer {
     options: RenderOptions,
     /// Never run the AVX2 build of the main pass (tests compare the two).
     portable: bool,
+    /// A camera with lens distortion: rendered as a pinhole, then resampled (`lens.rs`).
+    lens: Option<Arc<LensRemap>>,
 }
 
 impl Renderer {
     /// Renderer for `camera` with the default (noise-free) options.
     pub fn new(camera: Camera) -> Self {
         Self {
+            lens: LensRemap::new(&camera).map(Arc::new),
             camera,
             options: RenderOptions::default(),
             portable: false,
@@ -234,6 +239,7 @@ impl Renderer {
             )));
         }
         Ok(Self {
+            lens: LensRemap::new(&camera).map(Arc::new),
             camera,
             options,
             portable: false,
@@ -278,6 +284,16 @@ impl Renderer {
         terrain: &Terrain,
         zeta_ec: &Isometry3<f64>,
     ) -> Result<(GreyImage, RenderStats), RenderError> {
+        if let Some(lens) = &self.lens {
+            let pinhole = Self {
+                camera: lens.pinhole,
+                options: self.options,
+                portable: self.portable,
+                lens: None,
+            };
+            let (img, stats) = pinhole.render_with_stats(terrain, zeta_ec)?;
+            return Ok((lens.apply(&img), stats));
+        }
         let clock = std::time::Instant::now();
         let t_ec_e = zeta_ec.translation.vector;
         let q_ec = zeta_ec.rotation;
