@@ -259,3 +259,59 @@ fn a_missing_config_directory_is_refused_not_replaced_by_the_defaults() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The lens example (config/lens-example: a camera.toml naming its calibration file
+/// relatively) flies: the calibration is found beside camera.toml whatever the working
+/// directory, the renderer distorts the frames and the navigation records the lens.
+#[test]
+fn the_lens_example_flies_with_its_calibration_beside_its_camera_toml() {
+    let dir = temp_dir("lens");
+    let example = concat!(env!("CARGO_MANIFEST_DIR"), "/../config/lens-example");
+    let out_dir = dir.join("out");
+    let frames = dir.join("frames");
+    let out = Command::new(env!("CARGO_BIN_EXE_ianav-sim"))
+        .current_dir(&dir)
+        .args([
+            "run",
+            "--scenario",
+            "2",
+            "--duration",
+            "0.5",
+            "--terrain",
+            "mx",
+            "--vision-systems",
+            "ia-vns",
+            "--config-dir",
+            example,
+            "--frames",
+            frames.to_str().unwrap(),
+            "--out",
+            out_dir.to_str().unwrap(),
+        ])
+        .output()
+        .unwrap();
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let pngs = std::fs::read_dir(&frames).unwrap().count();
+    assert!(pngs >= 5, "{pngs} frames");
+    // The recorded navigation settings carry the calibration's lens.
+    let log = std::fs::read_dir(&out_dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .find(|p| p.extension().is_some_and(|x| x == "bin"))
+        .expect("a sensor log");
+    let reader = ianav::io::sensor_log::SensorLogReader::new(std::io::BufReader::new(
+        std::fs::File::open(&log).unwrap(),
+    ))
+    .unwrap();
+    let camera = ianav::nav::replay::config_of(&reader)
+        .unwrap()
+        .camera
+        .expect("a camera");
+    let lens = camera.intrinsics.calibration.expect("the calibration");
+    assert!(!lens.distortion.is_identity(), "{lens:?}");
+    let _ = std::fs::remove_dir_all(&dir);
+}

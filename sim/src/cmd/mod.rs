@@ -92,8 +92,10 @@ pub(crate) fn setup(args: &SetupArgs) -> Result<FlightSetup> {
         let terrain = ianav_sim::terrain::Terrain::new(zone, args.terrain_seed);
         let mut camera = ianav_sim::flight::CameraSetup::new(std::sync::Arc::new(terrain));
         if let Some((path, text)) = read_optional(dir, "camera.toml")? {
-            let settings = ianav::vision::camera::CameraSettings::from_toml_str(&text)
-                .with_context(|| path.display().to_string())?;
+            // A relative `calibration_file` is the config directory's.
+            let settings =
+                ianav::vision::camera::CameraSettings::from_toml_str_in(&text, path.parent())
+                    .with_context(|| path.display().to_string())?;
             camera.camera = settings.camera;
             camera.mounting = settings.mounting;
         }
