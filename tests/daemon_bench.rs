@@ -5,11 +5,6 @@
 //! `cargo test --profile ci --test daemon_bench -- --ignored --nocapture`; figures in
 //! docs/DAEMON.md.
 
-#![expect(
-    clippy::unwrap_used,
-    reason = "helpers outside #[test] functions: a failed loopback setup should fail the run loudly"
-)]
-
 mod common;
 
 use std::process::{Command, Stdio};
@@ -17,23 +12,9 @@ use std::time::Duration;
 
 use common::fake_autopilot::{self as fa, Fake};
 
-/// utime + stime of a process, clock ticks.
-fn cpu_ticks(pid: u32) -> u64 {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
-    // Fields after the parenthesised command name; utime and stime are fields 14 and 15.
-    let rest = &s[s.rfind(')').unwrap() + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    f[11].parse::<u64>().unwrap() + f[12].parse::<u64>().unwrap()
-}
-
-fn rss_kb(pid: u32) -> u64 {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    s.lines()
-        .find(|l| l.starts_with("VmRSS:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse().ok())
-        .unwrap()
-}
+#[path = "support/proc_stat.rs"]
+mod proc_stat;
+use proc_stat::{cpu_ticks, rss_kb};
 
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "benchmark: run by hand, see the module doc"]

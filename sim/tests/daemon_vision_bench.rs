@@ -21,9 +21,8 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use ianav_sim::flight::{CameraSetup, FlightSetup};
 use ianav_sim::sitl::{Autopilot, FramesListen, SitlOptions, VehicleConfig};
-use ianav_sim::terrain::{Terrain, Zone};
+use ianav_sim::terrain::Zone;
 use tokio::net::TcpListener;
 
 mod common;
@@ -31,23 +30,9 @@ mod common;
 const MISSION_S: f64 = 120.0;
 const LOSS_S: f64 = 20.0;
 
-/// utime + stime of a process, clock ticks (Linux USER_HZ, 100 per second).
-fn cpu_ticks(pid: u32) -> u64 {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/stat")).unwrap();
-    let rest = &s[s.rfind(')').unwrap() + 2..];
-    let f: Vec<&str> = rest.split_whitespace().collect();
-    f[11].parse::<u64>().unwrap() + f[12].parse::<u64>().unwrap()
-}
-
-/// Resident memory, kB.
-fn rss_kb(pid: u32) -> u64 {
-    let s = std::fs::read_to_string(format!("/proc/{pid}/status")).unwrap();
-    s.lines()
-        .find(|l| l.starts_with("VmRSS:"))
-        .and_then(|l| l.split_whitespace().nth(1))
-        .and_then(|v| v.parse().ok())
-        .unwrap()
-}
+#[path = "../../tests/support/proc_stat.rs"]
+mod proc_stat;
+use proc_stat::{cpu_ticks, rss_kb};
 
 /// The `ianav` binary of the same profile, beside this test's directory of dependencies.
 fn ianav_binary() -> std::path::PathBuf {
@@ -92,14 +77,8 @@ fn strip_ansi(s: &str) -> String {
 #[tokio::test(flavor = "multi_thread", worker_threads = 2)]
 #[ignore = "benchmark: run by hand, see the module doc"]
 async fn the_daemon_with_vision_in_real_time() {
-    let mut setup = FlightSetup::builtin(2).unwrap();
-    setup.scenario.duration_s = MISSION_S;
-    setup.scenario.gnss_loss_s = LOSS_S;
-    let zone = Zone::Mix;
-    let start = zone.start();
-    setup.scenario.start.lat_deg = start.lat_deg;
-    setup.scenario.start.lon_deg = start.lon_deg;
-    setup.camera = Some(CameraSetup::new(std::sync::Arc::new(Terrain::new(zone, 0))));
+    let setup = common::mx_camera_setup(MISSION_S, LOSS_S);
+    let start = Zone::Mix.start();
     let cam = &setup.camera.as_ref().unwrap().camera;
 
     let daemon_side = TcpListener::bind("127.0.0.1:0").await.unwrap();

@@ -13,9 +13,9 @@ use std::time::Duration;
 use ianav::daemon::config::DaemonConfig;
 use ianav::daemon::{self};
 use ianav::nav::fusion::FusionConfig;
-use ianav_sim::flight::{CameraSetup, FlightSetup};
+use ianav_sim::flight::FlightSetup;
 use ianav_sim::sitl::{Autopilot, FramesListen, SitlOptions, VehicleConfig};
-use ianav_sim::terrain::{Terrain, Zone};
+use ianav_sim::terrain::Zone;
 use tokio::net::TcpListener;
 
 mod common;
@@ -27,15 +27,7 @@ const LOSS_S: f64 = 20.0;
 const SPEED: f64 = 2.0;
 
 fn setup() -> FlightSetup {
-    let mut s = FlightSetup::builtin(2).unwrap();
-    s.scenario.duration_s = MISSION_S;
-    s.scenario.gnss_loss_s = LOSS_S;
-    let zone = Zone::Mix;
-    let start = zone.start();
-    s.scenario.start.lat_deg = start.lat_deg;
-    s.scenario.start.lon_deg = start.lon_deg;
-    s.camera = Some(CameraSetup::new(std::sync::Arc::new(Terrain::new(zone, 0))));
-    s
+    common::mx_camera_setup(MISSION_S, LOSS_S)
 }
 
 /// The daemon's configuration: the vehicle's camera and the ground's height at the start

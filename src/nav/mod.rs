@@ -815,6 +815,26 @@ mod tests {
         assert_eq!(nav.stats().initialisations, 1);
     }
 
+    /// Feeds sample `k` (100 Hz) of a still IMU whose gyro has deterministic ±σ noise (a
+    /// pseudo-random sign per axis: white enough for the second differences).
+    fn noisy_gyro(seed: u64) -> impl FnMut(&mut Navigator, u64, f64) {
+        let mut state = seed;
+        let mut sign = move || {
+            state ^= state << 13;
+            state ^= state >> 7;
+            state ^= state << 17;
+            if state & 1 == 0 { 1.0 } else { -1.0 }
+        };
+        move |nav, k, sigma| {
+            let gyro_rps = Vector3::new(sign(), sign(), sign()) * sigma;
+            nav.push(&SensorEvent::Imu(ImuSample {
+                t_us: k * 10_000,
+                gyro_rps,
+                accel_mps2: Vector3::new(0.0, 0.0, -9.81),
+            }));
+        }
+    }
+
     /// An IMU first a little, then much noisier than configured (ground, then flight): one
     /// report, then one more when the ratio has doubled; none while it stays there.
     #[test]
@@ -822,24 +842,8 @@ mod tests {
         let mut cfg = InsConfig::default();
         cfg.imu_noise.adopt = false;
         let mut nav = Navigator::new(&NavConfig::new(cfg.clone(), 2026.5)).unwrap();
-        // Deterministic ±σ noise (white enough for second differences: a pseudo-random sign).
-        let mut state = 0x2545_f491_4f6c_dd1d_u64;
-        let mut sign = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            if state & 1 == 0 { 1.0 } else { -1.0 }
-        };
         let r_gyro = cfg.attitude.r_gyro_rad2ps2;
-        let mut push = |nav: &mut Navigator, k: u64, sigma: f64| {
-            let mut v = || Vector3::new(sign(), sign(), sign()) * sigma;
-            let imu = ImuSample {
-                t_us: k * 10_000,
-                gyro_rps: v(),
-                accel_mps2: Vector3::new(0.0, 0.0, -9.81),
-            };
-            nav.push(&SensorEvent::Imu(imu));
-        };
+        let mut push = noisy_gyro(0x2545_f491_4f6c_dd1d);
         // 40 s at ×10 of the configured variance, 40 s at ×1000.
         for k in 0..4_000 {
             push(&mut nav, k, (10.0 * r_gyro).sqrt());
@@ -868,23 +872,10 @@ mod tests {
         let policy = cfg.imu_noise.clone();
         let mut nav = Navigator::new(&NavConfig::new(cfg.clone(), 2026.5)).unwrap();
         nav.initialise(&init()).unwrap();
-        let mut state = 0x9e37_79b9_7f4a_7c15_u64;
-        let mut sign = move || {
-            state ^= state << 13;
-            state ^= state >> 7;
-            state ^= state << 17;
-            if state & 1 == 0 { 1.0 } else { -1.0 }
-        };
         let configured = ImuNoiseModel::from_config(&cfg);
+        let mut push_sigma = noisy_gyro(0x9e37_79b9_7f4a_7c15);
         let mut push = |nav: &mut Navigator, k: u64, gyro_factor: f64| {
-            let sigma = (gyro_factor * configured.r_gyro_rad2ps2).sqrt();
-            let mut v = || Vector3::new(sign(), sign(), sign()) * sigma;
-            let imu = ImuSample {
-                t_us: k * 10_000,
-                gyro_rps: v(),
-                accel_mps2: Vector3::new(0.0, 0.0, -9.81),
-            };
-            nav.push(&SensorEvent::Imu(imu));
+            push_sigma(nav, k, (gyro_factor * configured.r_gyro_rad2ps2).sqrt());
         };
         // On the ground, ×10 the configured gyro variance: adopted, not reported.
         for k in 0..4_000 {

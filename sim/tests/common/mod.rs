@@ -9,11 +9,28 @@
 use std::time::Duration;
 
 use ianav::daemon::{Counters, DaemonError, Handle};
-use ianav_sim::flight::FlightSetup;
+use ianav_sim::flight::{CameraSetup, FlightSetup};
 use ianav_sim::sitl::{self, SitlError, SitlOptions, SitlSummary};
+use ianav_sim::terrain::{Terrain, Zone};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
 use tokio::task::JoinHandle;
+
+/// Scenario #2 over MX with the camera, cut to `mission_s` of mission with GNSS lost at
+/// `loss_s`, starting at the zone's start.
+pub fn mx_camera_setup(mission_s: f64, loss_s: f64) -> FlightSetup {
+    let mut s = FlightSetup::builtin(2).expect("scenario #2");
+    s.scenario.duration_s = mission_s;
+    s.scenario.gnss_loss_s = loss_s;
+    let start = Zone::Mix.start();
+    s.scenario.start.lat_deg = start.lat_deg;
+    s.scenario.start.lon_deg = start.lon_deg;
+    s.camera = Some(CameraSetup::new(std::sync::Arc::new(Terrain::new(
+        Zone::Mix,
+        0,
+    ))));
+    s
+}
 
 /// The one connection `who` makes to `l`, within 15 s.
 pub async fn accept(l: &TcpListener, who: &str) -> TcpStream {
