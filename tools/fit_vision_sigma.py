@@ -39,6 +39,8 @@ import os
 import sys
 
 CHI2_2_95 = 5.991
+# The two-sided 95 % band of chi-square with 2 degrees of freedom (2.5 % and 97.5 % quantiles).
+CHI2_2_BAND = (0.05064, 7.378)
 
 
 def load(path, system):
@@ -193,11 +195,18 @@ def published_nees(directories):
             sys.exit(f"{path}: no denied sample")
         inside = sum(1 for x in run if x <= CHI2_2_95) / len(run)
         print(f"{d}: {len(run)} samples, NEES mean {sum(run) / len(run):.2f}, "
-              f"{100 * inside:.1f} % within {CHI2_2_95}")
+              f"{100 * inside:.1f} % within {CHI2_2_95}, "
+              f"{100 * in_band(run):.1f} % in [{CHI2_2_BAND[0]}, {CHI2_2_BAND[1]}]")
         values += run
     inside = sum(1 for x in values if x <= CHI2_2_95) / len(values)
     print(f"all {len(directories)} runs: {len(values)} samples, NEES mean "
-          f"{sum(values) / len(values):.2f}, {100 * inside:.1f} % within {CHI2_2_95}")
+          f"{sum(values) / len(values):.2f}, {100 * inside:.1f} % within {CHI2_2_95}, "
+          f"{100 * in_band(values):.1f} % in [{CHI2_2_BAND[0]}, {CHI2_2_BAND[1]}]")
+
+
+def in_band(values):
+    """The share of `values` inside the two-sided 95 % band."""
+    return sum(1 for x in values if CHI2_2_BAND[0] <= x <= CHI2_2_BAND[1]) / len(values)
 
 
 def main():
