@@ -92,6 +92,9 @@ enum Command {
         /// Write every N-th frame.
         #[arg(long, default_value_t = 1, value_name = "N")]
         frame_every: u64,
+        /// A simulated run's `truth.csv`: its track and the errors go in too.
+        #[arg(long, value_name = "FILE")]
+        truth: Option<PathBuf>,
     },
     /// Print the version and exit.
     Version,
@@ -131,7 +134,8 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
             out,
             period_ms,
             frame_every,
-        }) => export_mcap(&log, &out, period_ms, frame_every),
+            truth,
+        }) => export_mcap(&log, &out, period_ms, frame_every, truth.as_deref()),
         Some(Command::Run { config, record }) => {
             let mut p = preflight(&config).map_err(|e| in_file(&config, e))?;
             p.config.record = record;
@@ -154,8 +158,22 @@ fn cli(cli: Cli) -> anyhow::Result<()> {
 }
 
 /// `ianav export-mcap`: the log through the navigator, to MCAP.
-fn export_mcap(log: &Path, out: &Path, period_ms: u64, frame_every: u64) -> anyhow::Result<()> {
+fn export_mcap(
+    log: &Path,
+    out: &Path,
+    period_ms: u64,
+    frame_every: u64,
+    truth: Option<&Path>,
+) -> anyhow::Result<()> {
     use std::io::BufReader;
+    let truth = match truth {
+        Some(path) => {
+            let text = std::fs::read_to_string(path).with_context(|| path.display().to_string())?;
+            ianav::io::mcap_export::truth_from_csv(&text)
+                .map_err(|e| anyhow::anyhow!("{}: {e}", path.display()))?
+        }
+        None => Vec::new(),
+    };
     let file = std::fs::File::open(log).with_context(|| log.display().to_string())?;
     let reader = ianav::io::sensor_log::SensorLogReader::new(BufReader::new(file))
         .with_context(|| log.display().to_string())?;
@@ -167,7 +185,7 @@ fn export_mcap(log: &Path, out: &Path, period_ms: u64, frame_every: u64) -> anyh
         period_us: period_ms.saturating_mul(1_000),
         frame_every,
     };
-    let s = ianav::io::mcap_export::export_mcap(reader, &cfg, mcap, &options)
+    let s = ianav::io::mcap_export::export_mcap(reader, &cfg, mcap, &options, &truth)
         .with_context(|| format!("{} -> {}", log.display(), out.display()))?;
     let counts: Vec<String> = s
         .messages

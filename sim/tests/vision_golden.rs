@@ -467,7 +467,8 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
 /// The MCAP export (docs/REPLAY.md "MCAP"): the golden flight with the GNSS lost at 4 s,
 /// fused, recorded and exported; read back with the `mcap` crate, every channel has its
 /// Foxglove schema and JSON encoding, the counts are the frames, the 10-Hz solutions and the
-/// fixes, and the positions are the replayed solutions'.
+/// fixes, and the positions are the replayed solutions'. With the flight's truth the true
+/// track is there too, and each status carries the solution's horizontal error.
 #[test]
 fn a_recording_exports_to_mcap_with_foxglove_schemas() {
     use ianav::io::mcap_export::{self, McapOptions};
@@ -485,11 +486,17 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
     }
     let bytes = writer.finish().unwrap();
     let mut out = std::io::Cursor::new(Vec::new());
+    let truth: Vec<mcap_export::TruthFix> = rec
+        .truth
+        .iter()
+        .map(|&(t_us, pos)| mcap_export::TruthFix { t_us, pos })
+        .collect();
     let summary = mcap_export::export_mcap(
         SensorLogReader::new(&bytes[..]).unwrap(),
         &cfg,
         &mut out,
         &McapOptions::default(),
+        &truth,
     )
     .unwrap();
     // The same log replayed alone: the solutions the export wrote from.
@@ -506,13 +513,16 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
         .count() as u64;
     let mut counts = std::collections::BTreeMap::<String, u64>::new();
     let mut positions = Vec::new();
+    let mut errors = Vec::new();
     let mcap_bytes = out.into_inner();
     for m in mcap::MessageStream::new(&mcap_bytes).unwrap() {
         let m = m.unwrap();
         let schema = m.channel.schema.as_ref().unwrap();
         let expected = match m.channel.topic.as_str() {
             mcap_export::TOPIC_IMAGE => "foxglove.CompressedImage",
-            mcap_export::TOPIC_POSITION | mcap_export::TOPIC_VISION_FIX => "foxglove.LocationFix",
+            mcap_export::TOPIC_POSITION
+            | mcap_export::TOPIC_VISION_FIX
+            | mcap_export::TOPIC_TRUTH => "foxglove.LocationFix",
             mcap_export::TOPIC_STATUS => "ianav.Status",
             other => panic!("unexpected topic {other}"),
         };
@@ -525,6 +535,11 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
         }
         if m.channel.topic == mcap_export::TOPIC_IMAGE {
             assert_eq!(v["format"], "png");
+        }
+        if m.channel.topic == mcap_export::TOPIC_STATUS
+            && let Some(e) = v["horizontal_error_m"].as_f64()
+        {
+            errors.push((m.log_time / 1_000, e));
         }
         *counts.entry(m.channel.topic.clone()).or_insert(0) += 1;
     }
@@ -544,5 +559,18 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
     for (t_us, lat_deg) in positions {
         let s = solutions.iter().find(|s| s.t_us == t_us).unwrap();
         assert_eq!(lat_deg, s.pos.lat_rad.to_degrees());
+    }
+    // The truth comes at the solutions' 10 Hz on the same clock: every status has its error,
+    // the solution's distance from the true position at its time.
+    let last_t_us = solutions.last().unwrap().t_us;
+    let truth_in_span = truth.iter().filter(|t| t.t_us <= last_t_us).count() as u64;
+    assert_eq!(counts[mcap_export::TOPIC_TRUTH], truth_in_span);
+    assert_eq!(errors.len() as u64, counts[mcap_export::TOPIC_STATUS]);
+    for (t_us, e) in errors {
+        let s = solutions.iter().find(|s| s.t_us == t_us).unwrap();
+        let t = truth.iter().min_by_key(|t| t.t_us.abs_diff(t_us)).unwrap();
+        let d = ianav::math::wgs84::ned_difference_m(&t.pos, &s.pos);
+        // serde_json's default float parsing may miss the last bit.
+        assert!((e - d.x.hypot(d.y)).abs() < 1e-9, "{e} against {}", d.x.hypot(d.y));
     }
 }

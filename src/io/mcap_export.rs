@@ -8,7 +8,8 @@
 //! | `/camera/image` | `foxglove.CompressedImage` | each frame the navigator took, PNG |
 //! | `/ianav/position` | `foxglove.LocationFix` | the published (fused) position and its ENU covariance |
 //! | `/ianav/vision_fix` | `foxglove.LocationFix` | each new fix of the visual navigation |
-//! | `/ianav/status` | `ianav.Status` | source, states, counters and accuracies to plot |
+//! | `/ianav/status` | `ianav.Status` | source, states, counters and accuracies to plot (and the horizontal error, with a truth) |
+//! | `/truth/position` | `foxglove.LocationFix` | a simulated run's true position (`truth.csv`), when given |
 //!
 //! Log time is the sensor time of the solution or frame, in nanoseconds.
 
@@ -30,6 +31,60 @@ pub const TOPIC_POSITION: &str = "/ianav/position";
 pub const TOPIC_VISION_FIX: &str = "/ianav/vision_fix";
 /// Status for plots.
 pub const TOPIC_STATUS: &str = "/ianav/status";
+/// A simulated run's true position.
+pub const TOPIC_TRUTH: &str = "/truth/position";
+
+/// One true position of a simulated run, at sensor time `t_us`.
+#[derive(Debug, Clone, Copy, PartialEq)]
+pub struct TruthFix {
+    /// Sensor time, µs (the log's clock).
+    pub t_us: u64,
+    /// Position.
+    pub pos: crate::math::wgs84::Geodetic,
+}
+
+/// The true positions of an `ianav-sim run` directory's `truth.csv` (columns `t_us`, `lat_deg`,
+/// `lon_deg`, `h_m`), in time order; the error names the line.
+pub fn truth_from_csv(text: &str) -> Result<Vec<TruthFix>, String> {
+    let mut lines = text.lines();
+    let header: Vec<&str> = lines.next().unwrap_or_default().split(',').collect();
+    let col = |name: &str| {
+        header
+            .iter()
+            .position(|h| h.trim() == name)
+            .ok_or_else(|| format!("no column {name}"))
+    };
+    let (t, lat, lon, h) = (col("t_us")?, col("lat_deg")?, col("lon_deg")?, col("h_m")?);
+    let mut out: Vec<TruthFix> = Vec::new();
+    for (i, line) in lines.enumerate() {
+        let f: Vec<&str> = line.split(',').collect();
+        let num = |c: usize| -> Result<f64, String> {
+            f.get(c)
+                .and_then(|v| v.trim().parse::<f64>().ok())
+                .filter(|v| v.is_finite())
+                .ok_or_else(|| format!("line {}: column {c} is not a number", i + 2))
+        };
+        let t_us = f
+            .get(t)
+            .and_then(|v| v.trim().parse::<u64>().ok())
+            .ok_or_else(|| format!("line {}: t_us is not a time", i + 2))?;
+        if out.last().is_some_and(|p| p.t_us >= t_us) {
+            return Err(format!("line {}: times must increase", i + 2));
+        }
+        out.push(TruthFix {
+            t_us,
+            pos: crate::math::wgs84::Geodetic {
+                lat_rad: num(lat)?.to_radians(),
+                lon_rad: num(lon)?.to_radians(),
+                h_m: num(h)?,
+            },
+        });
+    }
+    Ok(out)
+}
+
+/// Largest gap between a solution and the true position it is compared with, µs.
+const TRUTH_MATCH_US: u64 = 50_000;
 
 /// Why an export failed.
 #[derive(Debug, thiserror::Error)]
@@ -148,6 +203,8 @@ fn write_solution<W: Write + Seek>(
     writer: &mut mcap::Writer<W>,
     sol: &NavSolution,
     stats: &crate::nav::NavigatorStats,
+    truth: &[TruthFix],
+    truth_next: &mut usize,
 ) -> Result<(), mcap::McapError> {
     let p = &sol.cov.position_m2;
     let source = match sol.horizontal_source {
@@ -164,7 +221,7 @@ fn write_solution<W: Write + Seek>(
         "position_covariance_type": 3,
     });
     channels.write(writer, TOPIC_POSITION, sol.t_us, &position)?;
-    let status = serde_json::json!({
+    let mut status = serde_json::json!({
         "timestamp": stamp(sol.t_us),
         "horizontal_source": source,
         "vision_state": format!("{:?}", sol.vision.state),
@@ -179,15 +236,46 @@ fn write_solution<W: Write + Seek>(
         "fused_vision_fixes": stats.fused_vision_fixes,
         "vision_restarts": stats.vision_restarts,
     });
+    // The truth up to this solution, and its horizontal error against the nearest one.
+    let mut nearest: Option<&TruthFix> = None;
+    while let Some(t) = truth.get(*truth_next)
+        && t.t_us <= sol.t_us
+    {
+        let msg = serde_json::json!({
+            "timestamp": stamp(t.t_us),
+            "frame_id": "wgs84",
+            "latitude": t.pos.lat_rad.to_degrees(),
+            "longitude": t.pos.lon_rad.to_degrees(),
+            "altitude": t.pos.h_m,
+            "position_covariance": UNKNOWN_COVARIANCE,
+            "position_covariance_type": 0,
+        });
+        channels.write(writer, TOPIC_TRUTH, t.t_us, &msg)?;
+        nearest = Some(t);
+        *truth_next += 1;
+    }
+    let next = truth.get(*truth_next);
+    let nearest = match (nearest, next) {
+        (Some(a), Some(b)) if b.t_us - sol.t_us < sol.t_us - a.t_us => Some(b),
+        (None, b) => b,
+        (a, _) => a,
+    };
+    if let Some(t) = nearest.filter(|t| t.t_us.abs_diff(sol.t_us) <= TRUTH_MATCH_US) {
+        let d = crate::math::wgs84::ned_difference_m(&t.pos, &sol.pos);
+        status["horizontal_error_m"] = serde_json::json!(d.x.hypot(d.y));
+        status["altitude_error_m"] = serde_json::json!(-d.z);
+    }
     channels.write(writer, TOPIC_STATUS, sol.t_us, &status)
 }
 
-/// Replay `reader` with `cfg` and write the MCAP file to `out`.
+/// Replay `reader` with `cfg` and write the MCAP file to `out`; `truth` (a simulated run's,
+/// in time order, or empty) adds its track and the errors.
 pub fn export_mcap<R: Read, W: Write + Seek>(
     reader: SensorLogReader<R>,
     cfg: &NavConfig,
     out: W,
     options: &McapOptions,
+    truth: &[TruthFix],
 ) -> Result<McapSummary, McapExportError> {
     let mut writer = mcap::Writer::new(out)?;
     let image = writer.add_schema(
@@ -206,15 +294,20 @@ pub fn export_mcap<R: Read, W: Write + Seek>(
         ids: BTreeMap::new(),
         counts: BTreeMap::new(),
     };
-    for (topic, schema) in [
+    let mut topics = vec![
         (TOPIC_IMAGE, image),
         (TOPIC_POSITION, fix),
         (TOPIC_VISION_FIX, fix),
         (TOPIC_STATUS, status),
-    ] {
+    ];
+    if !truth.is_empty() {
+        topics.push((TOPIC_TRUTH, fix));
+    }
+    for (topic, schema) in topics {
         let id = writer.add_channel(schema, topic, "json", &none)?;
         channels.ids.insert(topic, id);
     }
+    let mut truth_next = 0_usize;
     // The callbacks cannot both borrow the writer mutably: solutions are collected per
     // event and written after it, in log order.
     let pending: std::cell::RefCell<Vec<NavSolution>> = std::cell::RefCell::default();
@@ -270,7 +363,14 @@ pub fn export_mcap<R: Read, W: Write + Seek>(
                     channels.write(&mut writer, TOPIC_VISION_FIX, fix.t_us, &msg)?;
                 }
                 for sol in pending.borrow_mut().drain(..) {
-                    write_solution(&mut channels, &mut writer, &sol, nav.stats())?;
+                    write_solution(
+                        &mut channels,
+                        &mut writer,
+                        &sol,
+                        nav.stats(),
+                        truth,
+                        &mut truth_next,
+                    )?;
                 }
                 Ok::<(), mcap::McapError>(())
             })();
@@ -291,11 +391,41 @@ pub fn export_mcap<R: Read, W: Write + Seek>(
         return Err(e.into());
     }
     for sol in pending.borrow_mut().drain(..) {
-        write_solution(&mut channels, &mut writer, &sol, &replay.nav)?;
+        write_solution(
+            &mut channels,
+            &mut writer,
+            &sol,
+            &replay.nav,
+            truth,
+            &mut truth_next,
+        )?;
     }
     writer.finish()?;
     Ok(McapSummary {
         replay,
         messages: channels.counts,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn a_truth_csv_is_read_and_bad_ones_named() {
+        let text = "t_us,t_s,lat_deg,lon_deg,h_m\n100000,-49.9,34.5,-89.0,2800.5\n\
+                    200000,-49.8,34.6,-89.1,2801.0\n";
+        let truth = truth_from_csv(text).unwrap();
+        assert_eq!(truth.len(), 2);
+        assert_eq!(truth[1].t_us, 200_000);
+        assert!((truth[0].pos.lat_rad.to_degrees() - 34.5).abs() < 1e-12);
+        assert_eq!(truth[1].pos.h_m, 2801.0);
+        let no_h = truth_from_csv("t_us,lat_deg,lon_deg\n1,2,3\n").unwrap_err();
+        assert!(no_h.contains("h_m"), "{no_h}");
+        let repeated = truth_from_csv("t_us,lat_deg,lon_deg,h_m\n5,1,2,3\n5,1,2,3\n").unwrap_err();
+        assert!(repeated.contains("line 3"), "{repeated}");
+        let nan = truth_from_csv("t_us,lat_deg,lon_deg,h_m\n5,NaN,2,3\n").unwrap_err();
+        assert!(nan.contains("line 2"), "{nan}");
+        assert!(truth_from_csv("t_us,lat_deg,lon_deg,h_m\n").unwrap().is_empty());
+    }
 }
