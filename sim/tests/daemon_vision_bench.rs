@@ -21,7 +21,6 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
-use ianav_sim::sitl::{Autopilot, FramesListen, SitlOptions, VehicleConfig};
 use ianav_sim::terrain::Zone;
 use tokio::net::TcpListener;
 
@@ -127,16 +126,7 @@ async fn the_daemon_with_vision_in_real_time() {
         .unwrap();
     let pid = child.id();
     let to_daemon = common::accept(&daemon_side, "the daemon").await;
-    let options = SitlOptions {
-        connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
-        vehicle: VehicleConfig {
-            fly_on_estimates: true,
-            ..VehicleConfig::for_autopilot(Autopilot::Ideal)
-        },
-        speed: 1.0,
-        frames: Some(FramesListen::Listener(frames)),
-        out_dir: None,
-    };
+    let options = common::camera_vehicle(vehicle_side.local_addr().unwrap(), frames, 1.0, None);
     let sitl_task = common::spawn_sitl(&setup, 1, options);
     let to_vehicle = common::accept(&vehicle_side, "the SITL vehicle").await;
     let relay = common::Relay::start(to_vehicle, to_daemon);

@@ -14,7 +14,6 @@ use ianav::daemon::config::DaemonConfig;
 use ianav::daemon::{self};
 use ianav::nav::fusion::FusionConfig;
 use ianav_sim::flight::FlightSetup;
-use ianav_sim::sitl::{Autopilot, FramesListen, SitlOptions, VehicleConfig};
 use ianav_sim::terrain::Zone;
 use tokio::net::TcpListener;
 
@@ -87,16 +86,12 @@ async fn the_daemon_navigates_on_the_rendered_frames_and_the_vehicle_flies_on_it
     let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
     let handle = hrx.await.unwrap();
     let to_daemon = common::accept(&daemon_side, "the daemon").await;
-    let options = SitlOptions {
-        connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
-        vehicle: VehicleConfig {
-            fly_on_estimates: true,
-            ..VehicleConfig::for_autopilot(Autopilot::Ideal)
-        },
-        speed: SPEED,
-        frames: Some(FramesListen::Listener(frames)),
-        out_dir: Some(dir.clone()),
-    };
+    let options = common::camera_vehicle(
+        vehicle_side.local_addr().unwrap(),
+        frames,
+        SPEED,
+        Some(dir.clone()),
+    );
     let mut sitl_task = common::spawn_sitl(&setup, 1, options);
     let to_vehicle = tokio::select! {
         s = common::accept(&vehicle_side, "the SITL vehicle") => s,

@@ -571,6 +571,10 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
         let t = truth.iter().min_by_key(|t| t.t_us.abs_diff(t_us)).unwrap();
         let d = ianav::math::wgs84::ned_difference_m(&t.pos, &s.pos);
         // serde_json's default float parsing may miss the last bit.
-        assert!((e - d.x.hypot(d.y)).abs() < 1e-9, "{e} against {}", d.x.hypot(d.y));
+        assert!(
+            (e - d.x.hypot(d.y)).abs() < 1e-9,
+            "{e} against {}",
+            d.x.hypot(d.y)
+        );
     }
 }

@@ -10,7 +10,9 @@ use std::time::Duration;
 
 use ianav::daemon::{Counters, DaemonError, Handle};
 use ianav_sim::flight::{CameraSetup, FlightSetup};
-use ianav_sim::sitl::{self, SitlError, SitlOptions, SitlSummary};
+use ianav_sim::sitl::{
+    self, Autopilot, FramesListen, SitlError, SitlOptions, SitlSummary, VehicleConfig,
+};
 use ianav_sim::terrain::{Terrain, Zone};
 use tokio::io::{AsyncReadExt, AsyncWriteExt};
 use tokio::net::{TcpListener, TcpStream};
@@ -30,6 +32,26 @@ pub fn mx_camera_setup(mission_s: f64, loss_s: f64) -> FlightSetup {
         0,
     ))));
     s
+}
+
+/// The ideal SITL vehicle flying on the companion's estimates, connecting to `vehicle` (an
+/// address), streaming its frames to whoever connects to `frames`, at `speed`.
+pub fn camera_vehicle(
+    vehicle: std::net::SocketAddr,
+    frames: std::net::TcpListener,
+    speed: f64,
+    out_dir: Option<std::path::PathBuf>,
+) -> SitlOptions {
+    SitlOptions {
+        connect: format!("tcpout:{vehicle}"),
+        vehicle: VehicleConfig {
+            fly_on_estimates: true,
+            ..VehicleConfig::for_autopilot(Autopilot::Ideal)
+        },
+        speed,
+        frames: Some(FramesListen::Listener(frames)),
+        out_dir,
+    }
 }
 
 /// The one connection `who` makes to `l`, within 15 s.
