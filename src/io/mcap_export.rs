@@ -426,6 +426,10 @@ mod tests {
         assert!(repeated.contains("line 3"), "{repeated}");
         let nan = truth_from_csv("t_us,lat_deg,lon_deg,h_m\n5,NaN,2,3\n").unwrap_err();
         assert!(nan.contains("line 2"), "{nan}");
-        assert!(truth_from_csv("t_us,lat_deg,lon_deg,h_m\n").unwrap().is_empty());
+        assert!(
+            truth_from_csv("t_us,lat_deg,lon_deg,h_m\n")
+                .unwrap()
+                .is_empty()
+        );
     }
 }
