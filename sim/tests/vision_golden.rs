@@ -35,7 +35,11 @@ const SCALE: u32 = 4;
 struct Recorder {
     events: Vec<SensorEvent>,
     fixes: Vec<String>,
-    truth: Vec<(u64, ianav::math::wgs84::Geodetic)>,
+    truth: Vec<(
+        u64,
+        ianav::math::wgs84::Geodetic,
+        nalgebra::UnitQuaternion<f64>,
+    )>,
 }
 
 impl FlightObserver for Recorder {
@@ -43,7 +47,7 @@ impl FlightObserver for Recorder {
         self.events.push(event.clone());
     }
     fn truth_sample(&mut self, sample: &TruthSample) {
-        self.truth.push((sample.t_us, sample.pos));
+        self.truth.push((sample.t_us, sample.pos, sample.q_nb));
     }
     fn vision_outputs(&mut self, _truth: &TruthSample, t_us: u64, systems: &[VisionOutput]) {
         for s in systems {
@@ -401,11 +405,11 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
     let gap = mission_us(6.0)..mission_us(6.0) + (gap_s * 1e6) as u64;
     let mut nav = Navigator::new(&cfg).unwrap();
     let truth_at = |t_us: u64| {
-        let i = rec.truth.partition_point(|(t, _)| *t < t_us);
+        let i = rec.truth.partition_point(|(t, _, _)| *t < t_us);
         rec.truth
             .get(i)
-            .filter(|(t, _)| *t == t_us)
-            .map(|(_, p)| *p)
+            .filter(|(t, _, _)| *t == t_us)
+            .map(|(_, p, _)| *p)
     };
     let mut last: Option<NavSolution> = None;
     let (mut sources, mut worst_nees) = (Vec::new(), 0.0_f64);
@@ -489,7 +493,11 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
     let truth: Vec<mcap_export::TruthFix> = rec
         .truth
         .iter()
-        .map(|&(t_us, pos)| mcap_export::TruthFix { t_us, pos })
+        .map(|&(t_us, pos, q_nb)| mcap_export::TruthFix {
+            t_us,
+            pos,
+            q_nb: Some(q_nb),
+        })
         .collect();
     let summary = mcap_export::export_mcap(
         SensorLogReader::new(&bytes[..]).unwrap(),
@@ -514,16 +522,29 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
     let mut counts = std::collections::BTreeMap::<String, u64>::new();
     let mut positions = Vec::new();
     let mut errors = Vec::new();
+    let (mut image_times, mut annotated, mut truth_poses) = (Vec::new(), Vec::new(), Vec::new());
+    let cam = &setup.camera.as_ref().unwrap().camera;
+    let (setup_w, setup_h) = (cam.width_px, cam.height_px);
     let mcap_bytes = out.into_inner();
+    // Kept for a look in Foxglove or a check against its published schemas (docs/REPLAY.md).
+    if let Some(path) = std::env::var_os("IANAV_MCAP_OUT") {
+        std::fs::write(path, &mcap_bytes).unwrap();
+    }
     for m in mcap::MessageStream::new(&mcap_bytes).unwrap() {
         let m = m.unwrap();
         let schema = m.channel.schema.as_ref().unwrap();
         let expected = match m.channel.topic.as_str() {
             mcap_export::TOPIC_IMAGE => "foxglove.CompressedImage",
             mcap_export::TOPIC_POSITION
+            | mcap_export::TOPIC_INS
             | mcap_export::TOPIC_VISION_FIX
             | mcap_export::TOPIC_TRUTH => "foxglove.LocationFix",
             mcap_export::TOPIC_STATUS => "ianav.Status",
+            mcap_export::TOPIC_FEATURES => "foxglove.ImageAnnotations",
+            mcap_export::TOPIC_POSE_FUSED
+            | mcap_export::TOPIC_POSE_INS
+            | mcap_export::TOPIC_POSE_VISION
+            | mcap_export::TOPIC_POSE_TRUTH => "foxglove.PoseInFrame",
             other => panic!("unexpected topic {other}"),
         };
         assert_eq!(schema.name, expected);
@@ -535,6 +556,28 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
         }
         if m.channel.topic == mcap_export::TOPIC_IMAGE {
             assert_eq!(v["format"], "png");
+            image_times.push(m.log_time);
+        }
+        if m.channel.topic == mcap_export::TOPIC_FEATURES {
+            let points = v["points"][0]["points"].as_array().unwrap();
+            annotated.push((m.log_time, points.len()));
+            for p in points {
+                let (x, y) = (p["x"].as_f64().unwrap(), p["y"].as_f64().unwrap());
+                assert!((0.0..=f64::from(setup_w)).contains(&x), "{p}");
+                assert!((0.0..=f64::from(setup_h)).contains(&y), "{p}");
+            }
+        }
+        if m.channel.topic.starts_with("/pose/") {
+            assert_eq!(v["frame_id"], mcap_export::ENU_FRAME);
+            let q = &v["pose"]["orientation"];
+            let norm2: f64 = ["x", "y", "z", "w"]
+                .iter()
+                .map(|k| q[k].as_f64().unwrap().powi(2))
+                .sum();
+            assert!((norm2 - 1.0).abs() < 1e-9, "{v}");
+        }
+        if m.channel.topic == mcap_export::TOPIC_POSE_TRUTH {
+            truth_poses.push((m.log_time / 1_000, v["pose"].clone()));
         }
         if m.channel.topic == mcap_export::TOPIC_STATUS
             && let Some(e) = v["horizontal_error_m"].as_f64()
@@ -556,6 +599,57 @@ fn a_recording_exports_to_mcap_with_foxglove_schemas() {
         counts[mcap_export::TOPIC_POSITION]
     );
     assert!(counts[mcap_export::TOPIC_VISION_FIX] > 30, "{counts:?}");
+    for (a, b) in [
+        (mcap_export::TOPIC_INS, mcap_export::TOPIC_POSITION),
+        (mcap_export::TOPIC_POSE_FUSED, mcap_export::TOPIC_POSITION),
+        (mcap_export::TOPIC_POSE_INS, mcap_export::TOPIC_POSITION),
+        (
+            mcap_export::TOPIC_POSE_VISION,
+            mcap_export::TOPIC_VISION_FIX,
+        ),
+        (mcap_export::TOPIC_POSE_TRUTH, mcap_export::TOPIC_TRUTH),
+    ] {
+        assert_eq!(counts[a], counts[b], "{a} against {b}");
+    }
+    // Every tracked frame's features are drawn on it: one annotation per visual fix (each fix
+    // is a tracked frame), at an image's time, each with the pose optimisation's inliers.
+    assert_eq!(
+        counts[mcap_export::TOPIC_FEATURES],
+        counts[mcap_export::TOPIC_VISION_FIX]
+    );
+    for (t_ns, n) in &annotated {
+        assert!(
+            image_times.contains(t_ns),
+            "annotation at {t_ns} ns without its image"
+        );
+        assert!(*n >= 10, "{n} features at {t_ns} ns");
+    }
+    // The true poses, in the ENU frame whose origin is the first solution written: at the
+    // truth's offset from it, and with the body's x axis where the truth's points.
+    let origin = solutions[0].pos;
+    for (t_us, pose) in &truth_poses {
+        let t = truth.iter().find(|t| t.t_us == *t_us).unwrap();
+        let ned = ianav::math::wgs84::ned_difference_m(&origin, &t.pos);
+        let p = &pose["position"];
+        let enu = nalgebra::Vector3::new(
+            p["x"].as_f64().unwrap(),
+            p["y"].as_f64().unwrap(),
+            p["z"].as_f64().unwrap(),
+        );
+        assert!((enu - nalgebra::Vector3::new(ned.y, ned.x, -ned.z)).norm() < 1e-6);
+    }
+    let (t0_us, pose0) = &truth_poses[0];
+    let t0 = truth.iter().find(|t| t.t_us == *t0_us).unwrap();
+    let q = &pose0["orientation"];
+    let q_enu_b = nalgebra::UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        q["w"].as_f64().unwrap(),
+        q["x"].as_f64().unwrap(),
+        q["y"].as_f64().unwrap(),
+        q["z"].as_f64().unwrap(),
+    ));
+    let x_enu = q_enu_b * nalgebra::Vector3::x();
+    let x_ned = t0.q_nb.unwrap() * nalgebra::Vector3::x();
+    assert!((x_enu - nalgebra::Vector3::new(x_ned.y, x_ned.x, -x_ned.z)).norm() < 1e-9);
     for (t_us, lat_deg) in positions {
         let s = solutions.iter().find(|s| s.t_us == t_us).unwrap();
         assert_eq!(lat_deg, s.pos.lat_rad.to_degrees());

@@ -186,6 +186,7 @@ impl VisualSystem {
             fix: self.fix.as_ref(),
             counters: self.vns.counters(),
             aiding: self.vns.aiding_counters(),
+            vns: &self.vns,
         }
     }
 }
@@ -204,6 +205,17 @@ pub struct VisualSystemView<'a> {
     pub counters: &'a VnsCounters,
     /// The IA-VNS's counters (any of its changes switched on).
     pub aiding: Option<&'a AidingCounters>,
+    vns: &'a Vns,
+}
+
+impl<'a> VisualSystemView<'a> {
+    /// While it tracks, its latest frame's exposure time and the pixels of the features its
+    /// pose rests on ([`Vns::tracked_features`]).
+    pub fn tracked_features(
+        &self,
+    ) -> Option<(u64, impl ExactSizeIterator<Item = Vector2<f64>> + 'a)> {
+        self.vns.tracked_features()
+    }
 }
 
 /// One frame and what the navigator knew of the INS at its time: all the visual systems read

@@ -522,6 +522,18 @@ impl Vns {
         &self.counters
     }
 
+    /// While tracking, the latest frame's exposure time and the level-0 pixels of its pose
+    /// optimisation's inliers (what a viewer draws on the image).
+    pub fn tracked_features(
+        &self,
+    ) -> Option<(u64, impl ExactSizeIterator<Item = Vector2<f64>> + '_)> {
+        let last = self
+            .last
+            .as_ref()
+            .filter(|_| self.state == VnsState::Tracking)?;
+        Some((last.t_us, last.features.iter().map(|f| f.0)))
+    }
+
     /// The map.
     pub fn map(&self) -> &Map {
         &self.map
