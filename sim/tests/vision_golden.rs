@@ -19,7 +19,7 @@ use std::path::Path;
 
 use ianav::io::sensor_log::{SensorLogReader, SensorLogWriter};
 use ianav::nav::replay::{config_of, config_to_toml, replay};
-use ianav::nav::{NavSolution, Navigator, VisionState};
+use ianav::nav::{NavConfig, NavSolution, Navigator, VisionState};
 use ianav::sensors::SensorEvent;
 use ianav_sim::flight::{
     CameraSetup, Flight, FlightObserver, FlightSetup, TruthSample, VisionOutput,
@@ -299,6 +299,18 @@ fn deferred_vision_equals_inline_and_replays_where_its_results_were_applied() {
     );
 }
 
+/// The golden flight (seed 2) with the GNSS lost at 4 s: its set-up, its navigator's settings
+/// and what it recorded.
+fn flown_with_the_loss_at_4_s() -> (FlightSetup, NavConfig, Recorder) {
+    let mut setup = setup();
+    setup.scenario.gnss_loss_s = 4.0;
+    let mut flight = Flight::new(&setup, 2).unwrap();
+    let cfg = flight.navigator().unwrap().config().clone();
+    let mut rec = Recorder::default();
+    flight.run(&mut rec, |_| {}).unwrap();
+    (setup, cfg, rec)
+}
+
 /// The fused solution on real frames (docs/FUSION.md): the golden flight with the GNSS lost
 /// at 4 s. Before the loss the published solution is the INS's, bit for bit; after it, while
 /// the IA-VNS tracks, the horizontal position is the latest fix carried by the INS (the fused
@@ -307,12 +319,7 @@ fn deferred_vision_equals_inline_and_replays_where_its_results_were_applied() {
 /// counter once.
 #[test]
 fn after_the_loss_the_published_position_is_the_ia_vns_fix_carried_by_the_ins() {
-    let mut setup = setup();
-    setup.scenario.gnss_loss_s = 4.0;
-    let mut flight = Flight::new(&setup, 2).unwrap();
-    let mut cfg = flight.navigator().unwrap().config().clone();
-    let mut rec = Recorder::default();
-    flight.run(&mut rec, |_| {}).unwrap();
+    let (_, mut cfg, rec) = flown_with_the_loss_at_4_s();
     let mut plain = Navigator::new(&cfg).unwrap();
     cfg.fusion = Some(ianav::nav::fusion::FusionConfig::default());
     let mut fused = Navigator::new(&cfg).unwrap();
@@ -476,12 +483,7 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
 #[test]
 fn a_recording_exports_to_mcap_with_foxglove_schemas() {
     use ianav::io::mcap_export::{self, McapOptions};
-    let mut setup = setup();
-    setup.scenario.gnss_loss_s = 4.0;
-    let mut flight = Flight::new(&setup, 2).unwrap();
-    let mut cfg = flight.navigator().unwrap().config().clone();
-    let mut rec = Recorder::default();
-    flight.run(&mut rec, |_| {}).unwrap();
+    let (setup, mut cfg, rec) = flown_with_the_loss_at_4_s();
     cfg.fusion = Some(ianav::nav::fusion::FusionConfig::default());
     let mut writer = SensorLogWriter::new(Vec::new()).unwrap();
     writer.write_nav_config(&config_to_toml(&cfg)).unwrap();
