@@ -12,7 +12,15 @@
 //! ```
 //!
 //! With `IANAV_BENCH_NO_CAMERA=1` the daemon runs without its camera while the vehicle still
-//! renders every frame: the same machine load without the vision, for comparison.
+//! renders every frame: the same machine load without the vision, for comparison. With
+//! `IANAV_BENCH_DAEMON_CPUS=LIST` the daemon runs under `taskset -c LIST`; run the test itself
+//! (the vehicle and its renderer) under `taskset -c` on the other CPUs so that the renderer,
+//! which an aircraft does not have, stays off the daemon's core:
+//!
+//! ```text
+//! IANAV_BENCH_DAEMON_CPUS=1 taskset -c 0 cargo test --profile ci -p ianav-sim \
+//!     --test daemon_vision_bench -- --ignored --nocapture
+//! ```
 #![expect(
     clippy::unwrap_used,
     reason = "a benchmark: a failed set-up should fail the run loudly"
@@ -117,7 +125,16 @@ async fn the_daemon_with_vision_in_real_time() {
         ),
     )
     .unwrap();
-    let child = Command::new(ianav_binary())
+    let cpus = std::env::var("IANAV_BENCH_DAEMON_CPUS").ok();
+    let mut command = match &cpus {
+        Some(list) => {
+            let mut c = Command::new("taskset");
+            c.args(["-c", list]).arg(ianav_binary());
+            c
+        }
+        None => Command::new(ianav_binary()),
+    };
+    let child = command
         .args(["run", "--config"])
         .arg(&cfg)
         .env("NO_COLOR", "1")
@@ -160,13 +177,14 @@ async fn the_daemon_with_vision_in_real_time() {
     let counters = line("counters");
     let cpu_pct = (c1 - c0) as f64 / 100.0 / dt_s * 100.0;
     println!(
-        "daemon {} the IA-VNS, {} frames sent ({} dropped by the vehicle), {:.0} s of flight \
+        "daemon {} the IA-VNS (CPUs {}), {} frames sent ({} dropped by the vehicle), {:.0} s of flight \
          measured: CPU {cpu_pct:.1} % of one core; RSS {rss0} kB → {rss1} kB; \
          IMU → solution p50 / p99 / max {:?} / {:?} / {:?} µs (target p99 ≤ 1,000); \
          frame → result p50 / p99 / max {:?} / {:?} / {:?} µs (target p99 ≤ 30,000); \
          vision fixes fused {:?}, frames dropped by the daemon {:?}, busy {:?}; \
          SITL max lag {:.3} s",
         if with_camera { "with" } else { "without" },
+        cpus.as_deref().unwrap_or("any"),
         summary.frames_sent,
         summary.frames_dropped,
         dt_s,

@@ -385,18 +385,36 @@ fn after_the_loss_the_published_position_is_the_ia_vns_fix_carried_by_the_ins() 
 /// position continues the dead-reckoned one, and the covariance still covers the error.
 #[test]
 fn after_a_gap_in_the_frames_the_ia_vns_restarts_from_the_fused_pose() {
-    gap_in_the_frames(1.5, 14.0);
+    frames_interrupted(1.5, 14.0, Interruption::NoFrames);
 }
 
 /// The same with the frames stopped for 10 s (a stalled stream that comes back).
 #[test]
 fn after_ten_seconds_without_frames_the_ia_vns_restarts_too() {
-    gap_in_the_frames(10.0, 30.0);
+    frames_interrupted(10.0, 30.0, Interruption::NoFrames);
 }
 
-/// The golden flight of `duration_s` with the GNSS lost at 4 s and no frame for `gap_s` after
-/// 6 s, navigated with the fused solution and the restarts.
-fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
+/// Featureless ground (water, a uniform field: every frame of 5 s one grey level, at the
+/// frames' own times): tracking is lost, the position dead-reckons, after 3 s of
+/// relocalisation the IA-VNS starts over and, once the ground has texture again, initialises
+/// from the fused pose and tracks.
+#[test]
+fn over_five_seconds_of_featureless_ground_the_ia_vns_is_lost_then_restarts() {
+    frames_interrupted(5.0, 20.0, Interruption::Featureless);
+}
+
+/// What the camera gives during the window.
+#[derive(Clone, Copy, PartialEq)]
+enum Interruption {
+    /// Nothing.
+    NoFrames,
+    /// Frames of one grey level.
+    Featureless,
+}
+
+/// The golden flight of `duration_s` with the GNSS lost at 4 s and the frames interrupted for
+/// `window_s` after 6 s, navigated with the fused solution and the restarts.
+fn frames_interrupted(window_s: f64, duration_s: f64, how: Interruption) {
     use ianav::math::wgs84::ned_difference_m;
     use ianav::nav::PositionSource;
     let mut setup = setup();
@@ -409,7 +427,7 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
     cfg.fusion = Some(ianav::nav::fusion::FusionConfig::default());
     cfg.vision_restart = Some(ianav::nav::VisionRestart::default());
     let mission_us = |s: f64| (setup.scenario.warmup_s + s) as u64 * 1_000_000;
-    let gap = mission_us(6.0)..mission_us(6.0) + (gap_s * 1e6) as u64;
+    let window = mission_us(6.0)..mission_us(6.0) + (window_s * 1e6) as u64;
     let mut nav = Navigator::new(&cfg).unwrap();
     let truth_at = |t_us: u64| {
         let i = rec.truth.partition_point(|(t, _, _)| *t < t_us);
@@ -420,12 +438,23 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
     };
     let mut last: Option<NavSolution> = None;
     let (mut sources, mut worst_nees) = (Vec::new(), 0.0_f64);
+    let mut featureless = 0;
     for e in &rec.events {
-        if let SensorEvent::Frame(f) = e
-            && gap.contains(&f.t_us)
-        {
-            continue;
-        }
+        let grey;
+        let e = match e {
+            SensorEvent::Frame(f) if window.contains(&f.t_us) => match how {
+                Interruption::NoFrames => continue,
+                Interruption::Featureless => {
+                    featureless += 1;
+                    grey = SensorEvent::Frame(ianav::sensors::Frame {
+                        pixels: vec![128_u8; f.pixels.len()].into(),
+                        ..f.clone()
+                    });
+                    &grey
+                }
+            },
+            e => e,
+        };
         let Some(s) = nav.push(e) else { continue };
         if s.ins_status.gnss_denied {
             if sources.last() != Some(&s.horizontal_source) {
@@ -458,6 +487,9 @@ fn gap_in_the_frames(gap_s: f64, duration_s: f64) {
             }
         }
         last = Some(s);
+    }
+    if how == Interruption::Featureless {
+        assert!(featureless as f64 >= 9.0 * window_s, "{featureless} grey frames");
     }
     assert_eq!(nav.stats().vision_restarts, 1);
     assert_eq!(
