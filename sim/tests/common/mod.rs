@@ -21,16 +21,19 @@ use tokio::task::JoinHandle;
 /// Scenario #2 over MX with the camera, cut to `mission_s` of mission with GNSS lost at
 /// `loss_s`, starting at the zone's start.
 pub fn mx_camera_setup(mission_s: f64, loss_s: f64) -> FlightSetup {
+    camera_setup(Zone::Mix, mission_s, loss_s)
+}
+
+/// Scenario #2 over `zone` with the camera (terrain seed 0, as `ianav-sim --terrain`), cut to
+/// `mission_s` of mission with GNSS lost at `loss_s`, starting at the zone's start.
+pub fn camera_setup(zone: Zone, mission_s: f64, loss_s: f64) -> FlightSetup {
     let mut s = FlightSetup::builtin(2).expect("scenario #2");
     s.scenario.duration_s = mission_s;
     s.scenario.gnss_loss_s = loss_s;
-    let start = Zone::Mix.start();
+    let start = zone.start();
     s.scenario.start.lat_deg = start.lat_deg;
     s.scenario.start.lon_deg = start.lon_deg;
-    s.camera = Some(CameraSetup::new(std::sync::Arc::new(Terrain::new(
-        Zone::Mix,
-        0,
-    ))));
+    s.camera = Some(CameraSetup::new(std::sync::Arc::new(Terrain::new(zone, 0))));
     s
 }
 
