@@ -489,7 +489,10 @@ fn frames_interrupted(window_s: f64, duration_s: f64, how: Interruption) {
         last = Some(s);
     }
     if how == Interruption::Featureless {
-        assert!(featureless as f64 >= 9.0 * window_s, "{featureless} grey frames");
+        assert!(
+            featureless as f64 >= 9.0 * window_s,
+            "{featureless} grey frames"
+        );
     }
     assert_eq!(nav.stats().vision_restarts, 1);
     assert_eq!(

@@ -36,9 +36,9 @@ use mavlink::{MAVLinkMessageRaw, Message};
 use nalgebra::UnitQuaternion;
 use tokio::net::TcpListener;
 
+mod ci;
 #[path = "../common/mod.rs"]
 mod common;
-mod ci;
 mod measurements;
 
 /// Mission duration flown (after the 50 s warm-up), s.
