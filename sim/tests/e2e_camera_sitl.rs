@@ -11,7 +11,6 @@
 use std::time::Duration;
 
 use ianav::daemon::config::DaemonConfig;
-use ianav::daemon::{self};
 use ianav::nav::fusion::FusionConfig;
 use ianav_sim::flight::FlightSetup;
 use ianav_sim::montecarlo::RunOutcome;
@@ -31,10 +30,35 @@ fn setup() -> FlightSetup {
     common::mx_camera_setup(MISSION_S, LOSS_S)
 }
 
-/// The daemon's configuration: with `frames`, the vehicle's camera and the ground's height at
-/// the start (the daemon's flat terrain) and the vision's default settings (the paper's
-/// IA-VNS); without, the INS alone.
-fn daemon_toml(setup: &FlightSetup, vehicle: &str, frames: Option<&str>) -> String {
+/// The camera mounting the simulator's own navigator is given for `seed` (the true mounting
+/// with the flight's calibration error, docs/CAMERA.md): what a user's calibration would put in
+/// the daemon's `[camera]`, as `euler_bc_deg` and `lens_from_reference_b_m` lines.
+fn calibrated_mounting_toml(setup: &FlightSetup, seed: u64) -> String {
+    let flight = ianav_sim::flight::Flight::new(setup, seed).unwrap();
+    let m = flight
+        .navigator()
+        .unwrap()
+        .config()
+        .camera
+        .as_ref()
+        .unwrap()
+        .mounting;
+    let e = ianav::math::so3::euler_zyx(&m.q_bc);
+    format!(
+        "euler_bc_deg = [{}, {}, {}]\nlens_from_reference_b_m = [{}, {}, {}]\n",
+        e.x.to_degrees(),
+        e.y.to_degrees(),
+        e.z.to_degrees(),
+        m.t_rc_b_m.x,
+        m.t_rc_b_m.y,
+        m.t_rc_b_m.z,
+    )
+}
+
+/// The daemon's configuration: with `frames`, the vehicle's camera, its mounting as calibrated
+/// for `seed`'s airframe and the ground's height at the start (the daemon's flat terrain) and
+/// the vision's default settings (the paper's IA-VNS); without, the INS alone.
+fn daemon_toml(setup: &FlightSetup, seed: u64, vehicle: &str, frames: Option<&str>) -> String {
     // The vehicle's ATTITUDE is its own INS: white errors, nothing slow to estimate (as in
     // sim/tests/e2e_daemon_sitl).
     let mut ins = ianav::ins::InsConfig::default();
@@ -46,12 +70,13 @@ fn daemon_toml(setup: &FlightSetup, vehicle: &str, frames: Option<&str>) -> Stri
         format!(
             "[camera]\nsource = \"frame_stream\"\naddress = \"{frames}\"\n\
              width_px = {}\nheight_px = {}\nfocal_length_mm = {}\npixel_pitch_um = {}\n\
-             terrain_height_m = {}\n",
+             terrain_height_m = {}\n{}",
             cam.width_px,
             cam.height_px,
             cam.focal_length_mm,
             cam.pixel_pitch_um,
             camera_setup.terrain.zone().start().ground_m,
+            calibrated_mounting_toml(setup, seed),
         )
     });
     format!(
@@ -98,14 +123,16 @@ async fn fly(
     ));
     std::fs::create_dir_all(&dir).unwrap();
     let daemon_addr = daemon_side.local_addr().unwrap().to_string();
-    let toml = daemon_toml(setup, &daemon_addr, camera.then_some(frames_addr.as_str()));
-    let mut cfg = DaemonConfig::from_toml_str(&toml, None).unwrap();
+    let toml = daemon_toml(
+        setup,
+        seed,
+        &daemon_addr,
+        camera.then_some(frames_addr.as_str()),
+    );
+    let cfg = DaemonConfig::from_toml_str(&toml, None).unwrap();
     let recording = dir.join("daemon.bin");
-    cfg.record = Some(recording.clone());
-    let (htx, hrx) = tokio::sync::oneshot::channel();
-    let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
-    let handle = hrx.await.unwrap();
-    let to_daemon = common::accept(&daemon_side, "the daemon").await;
+    let (handle, daemon_task, to_daemon) =
+        common::start_recording_daemon(cfg, &recording, &daemon_side).await;
     let mut options = common::camera_vehicle(
         vehicle_side.local_addr().unwrap(),
         frames,

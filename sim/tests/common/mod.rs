@@ -84,6 +84,21 @@ pub fn spawn_sitl(
     })
 }
 
+/// The in-process daemon started with `cfg`, recording its flight into `recording`
+/// (`ianav run --record`), and the connection it makes to `daemon_side`.
+pub async fn start_recording_daemon(
+    mut cfg: ianav::daemon::config::DaemonConfig,
+    recording: &std::path::Path,
+    daemon_side: &TcpListener,
+) -> (Handle, JoinHandle<Result<(), DaemonError>>, TcpStream) {
+    cfg.record = Some(recording.to_path_buf());
+    let (htx, hrx) = tokio::sync::oneshot::channel();
+    let task = tokio::spawn(ianav::daemon::run(cfg, Some(htx)));
+    let handle = hrx.await.expect("the daemon starts");
+    let stream = accept(daemon_side, "the daemon").await;
+    (handle, task, stream)
+}
+
 /// Stop the daemon and wait (10 s at most) for it to end without error.
 pub async fn stop_daemon(handle: &Handle, task: JoinHandle<Result<(), DaemonError>>) {
     handle.stop();

@@ -22,8 +22,8 @@
 use std::collections::BTreeMap;
 use std::time::Duration;
 
+use ianav::daemon::Counters;
 use ianav::daemon::config::DaemonConfig;
-use ianav::daemon::{self, Counters};
 use ianav::ins::{Ins, InsConfig, InsInit};
 use ianav::math::map_projection::MapProjection;
 use ianav::math::so3;
@@ -281,7 +281,7 @@ async fn fly_vehicle(
     let n = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let dir = std::env::temp_dir().join(format!("ianav_e2e_{}_{n}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
-    let mut cfg = DaemonConfig::from_toml_str(
+    let cfg = DaemonConfig::from_toml_str(
         &format!(
             "[mavlink]\nconnection = \"tcpout:{}\"\nclock = \"autopilot\"\n{daemon_toml}",
             daemon_side.local_addr().unwrap()
@@ -291,11 +291,8 @@ async fn fly_vehicle(
     .unwrap();
     // Every flight is recorded (`ianav run --record`) and its replay checked below.
     let recording = dir.join("daemon.bin");
-    cfg.record = Some(recording.clone());
-    let (htx, hrx) = tokio::sync::oneshot::channel();
-    let daemon_task = tokio::spawn(daemon::run(cfg, Some(htx)));
-    let handle = hrx.await.unwrap();
-    let to_daemon = common::accept(&daemon_side, "the daemon").await;
+    let (handle, daemon_task, to_daemon) =
+        common::start_recording_daemon(cfg, &recording, &daemon_side).await;
     let options = SitlOptions {
         connect: format!("tcpout:{}", vehicle_side.local_addr().unwrap()),
         vehicle: VehicleConfig {
