@@ -1,12 +1,8 @@
 //! Camera sources of the daemon (docs/REFERENCES.md M4):
 //!
-//! - `frame_stream`: TCP client of the vehicle's frame stream ([`crate::io::frame_stream`]).
-//!   Exposure times are in the vehicle's clock and are mapped with the time-sync offset; frames
-//!   that arrive before an offset is known, out of order, or more than 1 s in the future are
-//!   refused and counted. An absent
-//!   server is retried with exponential back-off (0.2 s doubling up to `camera.retry_max_s`);
-//!   a stream silent for 3 × `camera.timeout_s` is reconnected; a stall shorter than that
-//!   simply resumes.
+//! - `frame_stream`: TCP client of the vehicle's frame stream ([`crate::io::frame_stream`]), on
+//!   its own thread (`camera_stream.rs`: exposure times mapped with the time-sync offset,
+//!   refusals, reconnection).
 //! - `directory`: PNG / PGM files in name order, converted to 8-bit grey ([`decode_image`]). A file
 //!   whose stem is an integer is shown at that many µs after the first such file; otherwise
 //!   frames are paced at `camera.rate_hz`. Frames are stamped with the daemon's clock when
@@ -22,13 +18,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Duration;
 
-use tokio::io::AsyncReadExt;
 use tokio::sync::{mpsc, watch};
 
 use super::nav_thread::{FrameQueue, NavInput};
 use super::{Clock, Shared, stopped_after};
 use crate::daemon::config::{CameraSourceKind, DaemonConfig};
-use crate::io::frame_stream::{FrameHeader, HEADER_BYTES};
 use crate::sensors::Frame;
 
 /// Run the configured source until stopped.
@@ -48,23 +42,26 @@ pub(super) async fn run(
         refused_size: std::sync::atomic::AtomicU64::new(0),
     };
     match cfg.camera.source {
-        CameraSourceKind::FrameStream => frame_stream(cfg, clock, out, stop).await,
+        CameraSourceKind::FrameStream => {
+            blocking(move || super::camera_stream::run_blocking(cfg, clock, out, stop)).await;
+        }
         CameraSourceKind::Directory => directory(cfg, clock, out, stop).await,
         #[cfg(feature = "opencv")]
         CameraSourceKind::V4l2 | CameraSourceKind::Gstreamer => {
-            let capture = tokio::task::spawn_blocking(move || {
-                super::camera_cv::run_blocking(cfg, clock, out, stop);
-            });
-            // A panic of the capture thread is the camera task's own: the supervisor
-            // (`daemon::run`) restarts it or stops the daemon, never a silently dead camera.
-            if let Err(e) = capture.await
-                && e.is_panic()
-            {
-                std::panic::resume_unwind(e.into_panic());
-            }
+            blocking(move || super::camera_cv::run_blocking(cfg, clock, out, stop)).await;
         }
         // No camera, or a source this build cannot open (refused by the configuration).
         _ => {}
+    }
+}
+
+/// Run a blocking source on a thread of its own. Its panic is the camera task's own: the
+/// supervisor (`daemon::run`) restarts it or stops the daemon, never a silently dead camera.
+async fn blocking(source: impl FnOnce() + Send + 'static) {
+    if let Err(e) = tokio::task::spawn_blocking(source).await
+        && e.is_panic()
+    {
+        std::panic::resume_unwind(e.into_panic());
     }
 }
 
@@ -126,96 +123,14 @@ impl Out {
     }
 }
 
-async fn frame_stream(
-    cfg: Arc<DaemonConfig>,
-    clock: Clock,
-    out: Out,
-    mut stop: watch::Receiver<bool>,
-) {
-    let shared = out.shared.clone();
-    let autopilot_clock = cfg.mavlink.clock == crate::daemon::config::ClockSource::Autopilot;
-    let max_backoff = Duration::from_secs_f64(cfg.camera.retry_max_s);
-    let silence = Duration::from_secs_f64(3.0 * cfg.camera.timeout_s);
-    let mut backoff = Duration::from_millis(200);
-    let mut last_t_us: Option<u64> = None;
-    let mut failures = 0_u64;
-    loop {
-        let conn = tokio::select! {
-            c = tokio::net::TcpStream::connect(&cfg.camera.address) => c,
-            _ = stop.wait_for(|s| *s) => return,
-        };
-        let mut sock = match conn {
-            Ok(s) => s,
-            Err(e) => {
-                failures += 1;
-                // Log the first failure and then every 10th, not every attempt.
-                if failures % 10 == 1 {
-                    tracing::warn!("camera {}: {e} (retrying)", cfg.camera.address);
-                }
-                shared.count(|c| c.camera_errors += 1);
-                if stopped_after(&mut stop, backoff).await {
-                    return;
-                }
-                backoff = (backoff * 2).min(max_backoff);
-                continue;
-            }
-        };
-        failures = 0;
-        backoff = Duration::from_millis(200);
-        shared.count(|c| c.camera_connects += 1);
-        tracing::info!("camera frame stream connected: {}", cfg.camera.address);
-        loop {
-            let read = async {
-                let mut h = [0_u8; HEADER_BYTES];
-                sock.read_exact(&mut h).await?;
-                let header = FrameHeader::decode(&h)
-                    .map_err(|e| std::io::Error::new(std::io::ErrorKind::InvalidData, e))?;
-                let mut pixels = vec![0_u8; header.payload_bytes as usize];
-                sock.read_exact(&mut pixels).await?;
-                Ok::<_, std::io::Error>((header, pixels))
-            };
-            let r = tokio::select! {
-                r = tokio::time::timeout(silence, read) => r,
-                _ = stop.wait_for(|s| *s) => return,
-            };
-            let (header, pixels) = match r {
-                Ok(Ok(x)) => x,
-                Ok(Err(e)) => {
-                    tracing::warn!("camera stream: {e} (reconnecting)");
-                    shared.count(|c| c.camera_errors += 1);
-                    break;
-                }
-                Err(_) => {
-                    tracing::warn!("camera stream silent for {silence:?} (reconnecting)");
-                    shared.count(|c| c.camera_errors += 1);
-                    break;
-                }
-            };
-            let now = clock.now_us();
-            let offset = shared.state(|s| s.offset_us);
-            let mapped = offset
-                .and_then(|o| i64::try_from(header.t_us).ok()?.checked_add(o))
-                .and_then(|t| u64::try_from(t).ok())
-                // More than 1 s in the future: a bad offset, not a frame (daemon clock only:
-                // a simulated vehicle's clock may run ahead of ours).
-                .filter(|t| autopilot_clock || *t <= now + 1_000_000);
-            let Some(t_us) = mapped.filter(|t| last_t_us.is_none_or(|l| *t > l)) else {
-                shared.count(|c| c.frames_refused += 1);
-                continue;
-            };
-            last_t_us = Some(t_us);
-            let f = Frame {
-                t_us,
-                width: header.width,
-                height: header.height,
-                pixels: Arc::from(pixels),
-            };
-            out.deliver(f, now);
-        }
-        if stopped_after(&mut stop, backoff).await {
-            return;
-        }
+/// Sleep for `d`, in short slices so that a stop is seen promptly (blocking sources); `true`
+/// when stopped.
+pub(super) fn wait_unless_stopped(stop: &watch::Receiver<bool>, d: Duration) -> bool {
+    let end = std::time::Instant::now() + d;
+    while !*stop.borrow() && std::time::Instant::now() < end {
+        std::thread::sleep(Duration::from_millis(20));
     }
+    *stop.borrow()
 }
 
 /// Image files of a directory in name order.

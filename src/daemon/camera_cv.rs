@@ -23,7 +23,7 @@ use opencv::videoio;
 use tokio::sync::watch;
 
 use super::Clock;
-use super::camera::Out;
+use super::camera::{Out, wait_unless_stopped};
 use crate::daemon::config::{CameraSourceKind, DaemonConfig};
 
 /// Why a captured image could not be used.
@@ -115,11 +115,7 @@ pub(super) fn run_blocking(
     let mut backoff = Duration::from_millis(200);
     let stopped = || *stop.borrow();
     let wait = |d: Duration| {
-        // Sleep in short slices so that a stop is seen promptly.
-        let end = std::time::Instant::now() + d;
-        while !stopped() && std::time::Instant::now() < end {
-            std::thread::sleep(Duration::from_millis(20));
-        }
+        wait_unless_stopped(&stop, d);
     };
     let mut failures = 0_u64;
     while !stopped() {

@@ -23,6 +23,7 @@
 pub mod camera;
 #[cfg(feature = "opencv")]
 pub mod camera_cv;
+mod camera_stream;
 pub mod config;
 pub mod health;
 pub mod intervals;
