@@ -307,6 +307,14 @@ async fn run(cfg: ianav::daemon::config::DaemonConfig) -> anyhow::Result<()> {
             "frame received → visual result applied latency"
         );
     }
+    if let Some((p50, p99, max)) = handle.shared.frame_due_latency_percentiles() {
+        tracing::info!(
+            p50_us = p50,
+            p99_us = p99,
+            max_us = max,
+            "frame due (the INS at its time) → visual result applied latency"
+        );
+    }
     let result = match ended {
         Some(r) => r,
         None => {

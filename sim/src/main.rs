@@ -223,10 +223,11 @@ struct SitlArgs {
     /// as possible).
     #[arg(long, default_value_t = 1.0)]
     speed: f64,
-    /// Serve the camera frames (with --terrain) to one TCP client on this address, e.g.
-    /// 127.0.0.1:5600.
+    /// Serve the camera frames (with --terrain) to one client on this address: host:port
+    /// (TCP, e.g. 127.0.0.1:5600) or unix:PATH (a Unix socket, for a daemon on this machine:
+    /// lighter on its IMU latency, docs/PERFORMANCE.md).
     #[arg(long, requires = "terrain")]
-    frames_listen: Option<String>,
+    frames_listen: Option<ianav::io::frame_stream::StreamAddress>,
     /// Directory for sitl.csv (estimate versus truth); none: no log file.
     #[arg(long)]
     out: Option<PathBuf>,

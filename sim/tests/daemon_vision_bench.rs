@@ -21,6 +21,9 @@
 //! IANAV_BENCH_DAEMON_CPUS=1 taskset -c 0 cargo test --profile ci -p ianav-sim \
 //!     --test daemon_vision_bench -- --ignored --nocapture
 //! ```
+//!
+//! With `IANAV_BENCH_FRAMES=tcp` the frames travel over loopback TCP instead of the Unix
+//! socket a daemon beside its SITL vehicle uses (docs/PERFORMANCE.md "Where the IMU tail is").
 #![expect(
     clippy::unwrap_used,
     reason = "a benchmark: a failed set-up should fail the run loudly"
@@ -29,6 +32,8 @@
 use std::process::{Command, Stdio};
 use std::time::{Duration, Instant};
 
+use ianav::io::frame_stream::StreamAddress;
+use ianav_sim::sitl::FramesListen;
 use ianav_sim::terrain::Zone;
 use tokio::net::TcpListener;
 
@@ -97,11 +102,17 @@ async fn the_daemon_with_vision_in_real_time() {
     ins.alignment.ref_error_sigma_deg = [0.0; 3];
     let cfg = dir.join("ianav.toml");
     let with_camera = std::env::var_os("IANAV_BENCH_NO_CAMERA").is_none();
+    let over_tcp = std::env::var("IANAV_BENCH_FRAMES").is_ok_and(|v| v == "tcp");
+    let frames_address = if over_tcp {
+        StreamAddress::Tcp(frames.local_addr().unwrap().to_string())
+    } else {
+        StreamAddress::Unix(dir.join("frames.sock"))
+    };
     let camera = format!(
         "[camera]\nsource = \"frame_stream\"\naddress = \"{}\"\n\
          width_px = {}\nheight_px = {}\nfocal_length_mm = {}\npixel_pitch_um = {}\n\
          terrain_height_m = {}\n",
-        frames.local_addr().unwrap(),
+        frames_address,
         cam.width_px,
         cam.height_px,
         cam.focal_length_mm,
@@ -143,7 +154,10 @@ async fn the_daemon_with_vision_in_real_time() {
         .unwrap();
     let pid = child.id();
     let to_daemon = common::accept(&daemon_side, "the daemon").await;
-    let options = common::camera_vehicle(vehicle_side.local_addr().unwrap(), frames, 1.0, None);
+    let mut options = common::camera_vehicle(vehicle_side.local_addr().unwrap(), frames, 1.0, None);
+    if !over_tcp {
+        options.frames = Some(FramesListen::Addr(frames_address.clone()));
+    }
     let sitl_task = common::spawn_sitl(&setup, 1, options);
     let to_vehicle = common::accept(&vehicle_side, "the SITL vehicle").await;
     let relay = common::Relay::start(to_vehicle, to_daemon);
@@ -174,17 +188,20 @@ async fn the_daemon_with_vision_in_real_time() {
     };
     let imu = line("IMU received → solution written latency");
     let frame = line("frame received → visual result applied latency");
+    let frame_due = line("frame due (the INS at its time) → visual result applied latency");
     let counters = line("counters");
     let cpu_pct = (c1 - c0) as f64 / 100.0 / dt_s * 100.0;
     println!(
-        "daemon {} the IA-VNS (CPUs {}), {} frames sent ({} dropped by the vehicle), {:.0} s of flight \
+        "daemon {} the IA-VNS (CPUs {}, frames over {}), {} frames sent ({} dropped by the vehicle), {:.0} s of flight \
          measured: CPU {cpu_pct:.1} % of one core; RSS {rss0} kB → {rss1} kB; \
          IMU → solution p50 / p99 / max {:?} / {:?} / {:?} µs (target p99 ≤ 1,000); \
-         frame → result p50 / p99 / max {:?} / {:?} / {:?} µs (target p99 ≤ 30,000); \
+         frame → result p50 / p99 / max {:?} / {:?} / {:?} µs (target p99 ≤ 30,000), \
+         of which from due (the INS at the frame's time) {:?} / {:?} / {:?} µs; \
          vision fixes fused {:?}, frames dropped by the daemon {:?}, busy {:?}; \
          SITL max lag {:.3} s",
         if with_camera { "with" } else { "without" },
         cpus.as_deref().unwrap_or("any"),
+        if over_tcp { "TCP" } else { "a Unix socket" },
         summary.frames_sent,
         summary.frames_dropped,
         dt_s,
@@ -194,6 +211,9 @@ async fn the_daemon_with_vision_in_real_time() {
         field(&frame, "p50_us"),
         field(&frame, "p99_us"),
         field(&frame, "max_us"),
+        field(&frame_due, "p50_us"),
+        field(&frame_due, "p99_us"),
+        field(&frame_due, "max_us"),
         field(&counters, "vision_fixes_fused"),
         field(&counters, "frames_dropped"),
         field(&counters, "frames_vision_busy"),

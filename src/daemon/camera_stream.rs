@@ -1,5 +1,5 @@
-//! The `frame_stream` camera source (docs/REFERENCES.md M4): TCP client of the vehicle's frame
-//! stream ([`crate::io::frame_stream`]), on a thread of its own.
+//! The `frame_stream` camera source (docs/REFERENCES.md M4): client of the vehicle's frame
+//! stream ([`crate::io::frame_stream`]) over TCP or a Unix socket, on a thread of its own.
 //!
 //! Why not a tokio task: a 768 × 1024 frame arrives as a run of reads that kept a tokio worker
 //! busy for milliseconds while the sender was still writing it, and a worker busy in a task
@@ -15,6 +15,8 @@
 
 use std::io::{ErrorKind, Read};
 use std::net::{TcpStream, ToSocketAddrs};
+#[cfg(unix)]
+use std::os::unix::net::UnixStream;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
@@ -23,7 +25,7 @@ use tokio::sync::watch;
 use super::Clock;
 use super::camera::{Out, wait_unless_stopped};
 use crate::daemon::config::{ClockSource, DaemonConfig};
-use crate::io::frame_stream::{FrameHeader, HEADER_BYTES};
+use crate::io::frame_stream::{FrameHeader, HEADER_BYTES, StreamAddress};
 use crate::sensors::Frame;
 
 /// How often a blocked read looks at the stop signal.
@@ -50,7 +52,16 @@ pub(super) fn run_blocking(
     let autopilot_clock = cfg.mavlink.clock == ClockSource::Autopilot;
     let max_backoff = Duration::from_secs_f64(cfg.camera.retry_max_s);
     let silence = Duration::from_secs_f64(3.0 * cfg.camera.timeout_s);
-    let address = cfg.camera.address.as_str();
+    let address = match cfg.camera.address.parse::<StreamAddress>() {
+        Ok(a) => a,
+        Err(e) => {
+            // The configuration is validated at load; this is a daemon built around a bad one.
+            tracing::error!("camera: {e}");
+            shared.count(|c| c.camera_errors += 1);
+            return;
+        }
+    };
+    let address = &address;
     let mut backoff = Duration::from_millis(200);
     let mut last_t_us: Option<u64> = None;
     let mut failures = 0_u64;
@@ -117,9 +128,44 @@ pub(super) fn run_blocking(
     }
 }
 
-/// Connect to the first address `address` resolves to that accepts, with a read timeout of
-/// [`POLL`] so that reads can watch the stop signal.
-fn connect(address: &str) -> std::io::Result<TcpStream> {
+/// A connected frame stream.
+enum Connection {
+    Tcp(TcpStream),
+    #[cfg(unix)]
+    Unix(UnixStream),
+}
+
+impl Read for Connection {
+    fn read(&mut self, buf: &mut [u8]) -> std::io::Result<usize> {
+        match self {
+            Self::Tcp(s) => s.read(buf),
+            #[cfg(unix)]
+            Self::Unix(s) => s.read(buf),
+        }
+    }
+}
+
+/// Connect to the stream, with a read timeout of [`POLL`] so that reads can watch the stop
+/// signal.
+fn connect(address: &StreamAddress) -> std::io::Result<Connection> {
+    match address {
+        StreamAddress::Tcp(a) => connect_tcp(a).map(Connection::Tcp),
+        #[cfg(unix)]
+        StreamAddress::Unix(path) => {
+            let s = UnixStream::connect(path)?;
+            s.set_read_timeout(Some(POLL))?;
+            Ok(Connection::Unix(s))
+        }
+        #[cfg(not(unix))]
+        StreamAddress::Unix(_) => Err(std::io::Error::new(
+            ErrorKind::Unsupported,
+            "Unix sockets need a Unix system",
+        )),
+    }
+}
+
+/// Connect to the first address `address` resolves to that accepts.
+fn connect_tcp(address: &str) -> std::io::Result<TcpStream> {
     let mut last = std::io::Error::new(ErrorKind::NotFound, "the address resolves to nothing");
     for addr in address.to_socket_addrs()? {
         match TcpStream::connect_timeout(&addr, Duration::from_secs(2)) {
@@ -136,7 +182,7 @@ fn connect(address: &str) -> std::io::Result<TcpStream> {
 
 /// One frame record: its header and its pixels, read into the buffer the frame will share.
 fn read_frame(
-    sock: &mut TcpStream,
+    sock: &mut impl Read,
     stop: &watch::Receiver<bool>,
     silence: Duration,
 ) -> Result<(FrameHeader, Arc<[u8]>), ReadFailure> {
@@ -159,7 +205,7 @@ fn read_frame(
 
 /// Fill `buf` from the socket, watching the stop signal and the deadline before each read.
 fn fill(
-    sock: &mut TcpStream,
+    sock: &mut impl Read,
     buf: &mut [u8],
     stop: &watch::Receiver<bool>,
     deadline: Instant,
@@ -196,9 +242,9 @@ mod tests {
     use std::net::TcpListener;
 
     /// A connected pair on loopback: (the daemon's side, the sender's side).
-    fn pair() -> (TcpStream, TcpStream) {
+    fn pair() -> (Connection, TcpStream) {
         let listener = TcpListener::bind("127.0.0.1:0").expect("bind");
-        let address = listener.local_addr().expect("address").to_string();
+        let address = StreamAddress::Tcp(listener.local_addr().expect("address").to_string());
         let client = connect(&address).expect("connect");
         let (server, _) = listener.accept().expect("accept");
         (client, server)
@@ -238,6 +284,33 @@ mod tests {
             assert_eq!(&pixels[..], &frame(t).pixels[..]);
         }
         sender.join().expect("sender");
+    }
+
+    #[cfg(unix)]
+    #[test]
+    fn frames_arrive_over_a_unix_socket_and_its_silence_is_seen() {
+        let dir = std::env::temp_dir().join(format!("ianav-frames-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let path = dir.join("frames.sock");
+        let _ = std::fs::remove_file(&path);
+        let listener = std::os::unix::net::UnixListener::bind(&path).expect("bind");
+        let address: StreamAddress = format!("unix:{}", path.display()).parse().expect("address");
+        let mut client = connect(&address).expect("connect");
+        let (mut server, _) = listener.accept().expect("accept");
+        let (_stop_tx, stop) = watch::channel(false);
+        let mut bytes = Vec::new();
+        write_frame(&mut bytes, &frame(7), 3).expect("encode");
+        server.write_all(&bytes).expect("send");
+        let Ok((header, pixels)) = read_frame(&mut client, &stop, Duration::from_secs(5)) else {
+            panic!("frame not read");
+        };
+        assert_eq!((header.t_us, header.seq), (7, 3));
+        assert_eq!(&pixels[..], &frame(7).pixels[..]);
+        // Nothing more: silence within the deadline (the read timeout applies here too).
+        let r = read_frame(&mut client, &stop, Duration::from_millis(300));
+        assert!(matches!(r, Err(ReadFailure::Silent)));
+        drop(server);
+        let _ = std::fs::remove_dir_all(&dir);
     }
 
     #[test]

@@ -393,6 +393,23 @@ pub struct NavigationConfig {
     /// pose (docs/FUSION.md).
     #[serde(default)]
     pub vision_restart: crate::nav::VisionRestart,
+    /// How the vision thread is scheduled beside the IMU path (docs/DAEMON.md "Threads").
+    #[serde(default)]
+    pub vision_thread: VisionThreadPolicy,
+}
+
+/// `navigation.vision_thread`: the vision thread's scheduling policy.
+#[derive(Debug, Clone, Copy, PartialEq, Eq, Default, Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum VisionThreadPolicy {
+    /// `SCHED_IDLE`: it runs only when no other thread of the core wants to, so a woken IMU
+    /// path takes the core at once (otherwise the kernel lets the vision finish its time slice,
+    /// about 2 ms). On a core shared with busy processes the vision gets only what they leave
+    /// (frames then show as `frames_vision_busy`): use `normal` there.
+    #[default]
+    Idle,
+    /// The default policy of the process.
+    Normal,
 }
 
 fn yes() -> bool {
@@ -408,6 +425,7 @@ impl Default for NavigationConfig {
             vision_position: true,
             vision_error: crate::nav::fusion::FusionConfig::default(),
             vision_restart: crate::nav::VisionRestart::default(),
+            vision_thread: VisionThreadPolicy::default(),
         }
     }
 }

@@ -229,6 +229,7 @@ fn start_navigation(
         latest_tx,
         publisher,
         ctx.shared.clone(),
+        ctx.cfg.navigation.vision_thread,
         nav_thread::Exit::new(exit_tx, fault),
     )
     .map_err(|e| DaemonError::Thread(e.to_string()))?;

@@ -12,6 +12,7 @@ use std::time::Instant;
 
 use tokio::sync::{mpsc, watch};
 
+use super::config::VisionThreadPolicy;
 use super::{Latest, Shared};
 use crate::io::sensor_log::SensorLogWriter;
 use crate::nav::{NavConfig, Navigator, StartKind, VisionDone, VisionTask};
@@ -238,6 +239,7 @@ pub fn spawn(
     latest: watch::Sender<Option<Latest>>,
     mut publisher: super::publish::Publisher,
     shared: Arc<Shared>,
+    vision_policy: VisionThreadPolicy,
     exit: Exit,
 ) -> std::io::Result<std::thread::JoinHandle<()>> {
     std::thread::Builder::new()
@@ -251,13 +253,18 @@ pub fn spawn(
             let mut adoptions_reported = 0_u64;
             let mut starts_logged = 0_u64;
             let mut merge = FrameMerge::new(frames.cap);
-            // When each waiting or running frame was received (exposure time, instant).
-            let mut arrivals: VecDeque<(u64, Instant)> = VecDeque::new();
-            let mut vision = VisionWorker::start(&nav, wake);
+            // Each waiting or running frame: exposure time, when it was received, and when it
+            // was due (fed to the navigator: the INS had reached its time).
+            let mut arrivals: VecDeque<(u64, Instant, Option<Instant>)> = VecDeque::new();
+            let mut vision = VisionWorker::start(&nav, wake, vision_policy);
             let feed_frame = |nav: &mut Navigator,
                               recorder: &mut Option<Recorder>,
                               vision: &mut Option<VisionWorker>,
-                              f| {
+                              arrivals: &mut VecDeque<(u64, Instant, Option<Instant>)>,
+                              f: Frame| {
+                if let Some(a) = arrivals.iter_mut().rev().find(|a| a.0 == f.t_us) {
+                    a.2 = Some(Instant::now());
+                }
                 let frame = SensorEvent::Frame(f);
                 if let Some(r) = recorder.as_mut() {
                     r.record(&frame, &shared);
@@ -282,7 +289,7 @@ pub fn spawn(
                     if arrivals.len() >= 4 * frames.cap + 8 {
                         arrivals.pop_front();
                     }
-                    arrivals.push_back((f.t_us, at));
+                    arrivals.push_back((f.t_us, at, None));
                     let dropped = merge.add(f);
                     if dropped > 0 {
                         shared.count(|c| c.frames_dropped += dropped);
@@ -292,28 +299,29 @@ pub fn spawn(
                     && let Some(t_us) = w.collect(&mut nav, &mut recorder, &shared)
                 {
                     // Frames up to this one are done with (applied, refused or dropped).
-                    while let Some(&(t, at)) = arrivals.front()
+                    while let Some(&(t, at, due)) = arrivals.front()
                         && t <= t_us
                     {
                         arrivals.pop_front();
                         if t == t_us {
-                            shared.record_frame_latency(
-                                u64::try_from(at.elapsed().as_micros()).unwrap_or(u64::MAX),
-                            );
+                            let us = |i: Instant| {
+                                u64::try_from(i.elapsed().as_micros()).unwrap_or(u64::MAX)
+                            };
+                            shared.record_frame_latency(us(at), us(due.unwrap_or(at)));
                         }
                     }
                 }
                 // Before the INS runs there is no pose for a frame's time to wait for.
                 if !nav.is_initialised() {
                     while let Some(f) = merge.pop() {
-                        feed_frame(&mut nav, &mut recorder, &mut vision, f);
+                        feed_frame(&mut nav, &mut recorder, &mut vision, &mut arrivals, f);
                     }
                 }
                 match input {
                     NavInput::FramesReady | NavInput::VisionDone => {}
                     NavInput::Event(ev, rx_at) => {
                         while let Some(f) = merge.pop_due(ev.t_us()) {
-                            feed_frame(&mut nav, &mut recorder, &mut vision, f);
+                            feed_frame(&mut nav, &mut recorder, &mut vision, &mut arrivals, f);
                         }
                         if let SensorEvent::Gnss(fix) = &ev {
                             publisher.on_fix(fix.t_us);
@@ -419,7 +427,7 @@ pub fn spawn(
                 }
             }
             while let Some(f) = merge.pop() {
-                feed_frame(&mut nav, &mut recorder, &mut vision, f);
+                feed_frame(&mut nav, &mut recorder, &mut vision, &mut arrivals, f);
             }
             // A frame still out is given up: its result would come after the last event.
             drop(vision);
@@ -452,7 +460,11 @@ impl VisionWorker {
     /// cannot be started: logged, and the frames are then counted busy).
     /// `wake`: the navigation thread's input, told when a frame is done (weak: the thread
     /// ends when the link and the camera have stopped, whatever the worker holds).
-    fn start(nav: &Navigator, wake: mpsc::WeakSender<NavInput>) -> Option<Self> {
+    fn start(
+        nav: &Navigator,
+        wake: mpsc::WeakSender<NavInput>,
+        policy: VisionThreadPolicy,
+    ) -> Option<Self> {
         let cfg = nav.config();
         if !(cfg.vision_deferred && cfg.camera.is_some()) {
             return None;
@@ -462,6 +474,7 @@ impl VisionWorker {
         let thread = std::thread::Builder::new()
             .name("ianav-vision".to_owned())
             .spawn(move || {
+                apply_policy(policy);
                 while let Ok(task) = task_rx.recv() {
                     let result =
                         std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| task.run()))
@@ -555,6 +568,27 @@ impl Drop for VisionWorker {
 }
 
 /// Log a start of the navigator's; the first fixes the local frame's origin.
+/// Schedule the calling (vision) thread by `policy`; a refusal is logged and the thread runs
+/// at the default policy.
+fn apply_policy(policy: VisionThreadPolicy) {
+    use thread_priority::unix::{
+        NormalThreadSchedulePolicy, ThreadSchedulePolicy, set_thread_priority_and_policy,
+        thread_native_id,
+    };
+    if policy == VisionThreadPolicy::Normal {
+        return;
+    }
+    let idle = ThreadSchedulePolicy::Normal(NormalThreadSchedulePolicy::Idle);
+    match set_thread_priority_and_policy(
+        thread_native_id(),
+        thread_priority::ThreadPriority::Min,
+        idle,
+    ) {
+        Ok(()) => tracing::debug!("vision thread at SCHED_IDLE"),
+        Err(e) => tracing::warn!("vision thread: SCHED_IDLE refused ({e:?}); default policy"),
+    }
+}
+
 fn log_start(nav: &Navigator, shared: &Shared) {
     let Some(start) = nav.last_start() else {
         return;
@@ -684,6 +718,7 @@ mod tests {
             latest,
             publisher,
             shared.clone(),
+            VisionThreadPolicy::Idle,
             Exit::new(exit_tx, None),
         )
         .unwrap();

@@ -253,6 +253,7 @@ pub struct Shared {
     state: Mutex<State>,
     latencies_us: Mutex<Vec<u32>>,
     frame_latencies_us: Mutex<Vec<u32>>,
+    frame_due_latencies_us: Mutex<Vec<u32>>,
 }
 
 /// Keep `us` in a ring of the [`LATENCY_RING`] most recent latencies (`n`: samples so far).
@@ -309,19 +310,28 @@ impl Shared {
         percentiles(&self.latencies_us)
     }
 
-    /// Record one frame received → visual result applied latency.
-    pub fn record_frame_latency(&self, us: u64) {
+    /// Record one frame's latencies to its visual result applied: from its reception
+    /// (`received_us`) and from when it was due (`due_us`: the INS had reached its exposure
+    /// time, so that the rest is the daemon's own work; a frame that arrives before the IMU
+    /// samples of its instant waits for them first).
+    pub fn record_frame_latency(&self, received_us: u64, due_us: u64) {
         let n = self.count(|c| {
-            c.frame_latency_max_us = c.frame_latency_max_us.max(us);
+            c.frame_latency_max_us = c.frame_latency_max_us.max(received_us);
             c.frame_latency_samples += 1;
             c.frame_latency_samples
         });
-        keep_latency(&self.frame_latencies_us, n, us);
+        keep_latency(&self.frame_latencies_us, n, received_us);
+        keep_latency(&self.frame_due_latencies_us, n, due_us);
     }
 
-    /// (p50, p99, max) of the recent frame → visual result latencies, µs.
+    /// (p50, p99, max) of the recent frame received → visual result latencies, µs.
     pub fn frame_latency_percentiles(&self) -> Option<(u32, u32, u32)> {
         percentiles(&self.frame_latencies_us)
+    }
+
+    /// (p50, p99, max) of the recent frame due → visual result latencies, µs.
+    pub fn frame_due_latency_percentiles(&self) -> Option<(u32, u32, u32)> {
+        percentiles(&self.frame_due_latencies_us)
     }
 
     /// Read or update the state.

@@ -1,6 +1,7 @@
 //! Camera frame stream between the vehicle (the simulator in SITL) and the daemon (docs/DAEMON.md
 //! "Camera sources"; docs/REFERENCES.md M4): length-prefixed 8-bit grey frames over a byte
-//! stream (loopback TCP), timestamped in the vehicle's clock.
+//! stream, timestamped in the vehicle's clock. The stream is TCP (`host:port`) or, between
+//! processes of one machine, a Unix stream socket (`unix:PATH`, [`StreamAddress`]).
 //!
 //! Wire format, little-endian, one record per frame:
 //!
@@ -19,7 +20,10 @@
 //! The header is validated before any payload is read, so a corrupt or hostile stream can
 //! never make the reader allocate more than [`MAX_PAYLOAD_BYTES`].
 
+use std::fmt;
 use std::io::{self, Read, Write};
+use std::path::PathBuf;
+use std::str::FromStr;
 use std::sync::Arc;
 
 use crate::sensors::Frame;
@@ -77,6 +81,58 @@ pub enum FrameStreamError {
     /// The underlying stream failed (or ended inside a record).
     #[error("frame stream: {0}")]
     Io(#[from] io::Error),
+}
+
+/// Where a frame stream is served and read.
+///
+/// A Unix socket serves the SITL vehicle and the daemon on one machine: loopback TCP made the
+/// reader wait on the socket lock the writer holds while it copies a frame in, which showed as
+/// milliseconds on the daemon's IMU path (docs/PERFORMANCE.md "Where the IMU tail is").
+#[derive(Debug, Clone, PartialEq, Eq)]
+pub enum StreamAddress {
+    /// `host:port` over TCP.
+    Tcp(String),
+    /// `unix:PATH`: a Unix stream socket at `PATH`.
+    Unix(PathBuf),
+}
+
+/// The prefix that marks a Unix socket path in a [`StreamAddress`].
+pub const UNIX_PREFIX: &str = "unix:";
+
+/// A frame stream address that is neither `host:port` nor `unix:PATH`.
+#[derive(Debug, thiserror::Error)]
+#[error("frame stream address {0:?}: expected host:port or unix:PATH")]
+pub struct AddressError(pub String);
+
+impl FromStr for StreamAddress {
+    type Err = AddressError;
+
+    fn from_str(s: &str) -> Result<Self, Self::Err> {
+        if let Some(path) = s.strip_prefix(UNIX_PREFIX) {
+            if path.is_empty() {
+                return Err(AddressError(s.to_owned()));
+            }
+            return Ok(Self::Unix(PathBuf::from(path)));
+        }
+        // host:port with a non-empty host and a port number (IPv6 hosts in brackets).
+        let valid = s
+            .rsplit_once(':')
+            .is_some_and(|(host, port)| !host.is_empty() && port.parse::<u16>().is_ok());
+        if valid {
+            Ok(Self::Tcp(s.to_owned()))
+        } else {
+            Err(AddressError(s.to_owned()))
+        }
+    }
+}
+
+impl fmt::Display for StreamAddress {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            Self::Tcp(a) => f.write_str(a),
+            Self::Unix(p) => write!(f, "{UNIX_PREFIX}{}", p.display()),
+        }
+    }
 }
 
 impl FrameHeader {
@@ -186,6 +242,31 @@ pub fn read_frame(r: &mut impl Read) -> Result<Option<(FrameHeader, Frame)>, Fra
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    #[test]
+    fn addresses_are_host_port_or_a_unix_path() {
+        let tcp: StreamAddress = "127.0.0.1:5600".parse().expect("tcp");
+        assert_eq!(tcp, StreamAddress::Tcp("127.0.0.1:5600".into()));
+        assert!(matches!("[::1]:5600".parse(), Ok(StreamAddress::Tcp(_))));
+        assert!(matches!(
+            "localhost:5600".parse(),
+            Ok(StreamAddress::Tcp(_))
+        ));
+        let unix: StreamAddress = "unix:/run/ianav/frames.sock".parse().expect("unix");
+        assert_eq!(unix, StreamAddress::Unix("/run/ianav/frames.sock".into()));
+        assert_eq!(unix.to_string(), "unix:/run/ianav/frames.sock");
+        for bad in [
+            "",
+            "5600",
+            ":5600",
+            "host:",
+            "host:port",
+            "host:70000",
+            "unix:",
+        ] {
+            assert!(bad.parse::<StreamAddress>().is_err(), "{bad:?} accepted");
+        }
+    }
 
     fn frame(t_us: u64, w: u32, h: u32) -> Frame {
         let pixels: Vec<u8> = (0..w * h).map(|i| (i % 251) as u8).collect();

@@ -1,6 +1,6 @@
 //! Camera frame stream server of the SITL vehicle (docs/DAEMON.md "Camera sources"; wire
-//! format in `ianav::io::frame_stream`): one TCP client at a time receives the rendered
-//! frames, stamped on the vehicle's boot clock. The flight loop hands frames over through a
+//! format in `ianav::io::frame_stream`): one client at a time, over TCP or a Unix socket,
+//! receives the rendered frames, stamped on the vehicle's boot clock. The flight loop hands frames over through a
 //! small bounded queue with `try_send`, so a slow or absent client can never hold the flight
 //! back: frames that do not fit are dropped and counted. A client may connect late or
 //! reconnect at any time; a new connection replaces the current one.
@@ -10,8 +10,8 @@ use std::sync::atomic::{AtomicU64, Ordering};
 
 use ianav::io::frame_stream;
 use ianav::sensors::Frame;
-use tokio::io::AsyncWriteExt;
-use tokio::net::{TcpListener, TcpStream};
+use tokio::io::{AsyncWrite, AsyncWriteExt};
+use tokio::net::{TcpListener, UnixListener};
 use tokio::sync::mpsc;
 
 /// Frames the flight loop may queue ahead of the socket (two: 200 ms of frames).
@@ -52,8 +52,36 @@ impl FrameSender {
     }
 }
 
+/// Where the frame server accepts its client.
+#[derive(Debug)]
+pub enum FrameListener {
+    /// TCP (`host:port`).
+    Tcp(TcpListener),
+    /// A Unix stream socket (`unix:PATH`).
+    Unix(UnixListener),
+}
+
+/// A connected client, whatever the transport.
+type Client = std::pin::Pin<Box<dyn AsyncWrite + Send>>;
+
+impl FrameListener {
+    async fn accept(&self) -> std::io::Result<Client> {
+        Ok(match self {
+            Self::Tcp(l) => {
+                let (stream, _) = l.accept().await?;
+                // Frames are large and latency matters more than packing.
+                let _ = stream.set_nodelay(true);
+                Box::pin(stream)
+            }
+            Self::Unix(l) => Box::pin(l.accept().await?.0),
+        })
+    }
+}
+
 /// Start serving frames on `listener`; the task ends when the sender is dropped.
-pub fn spawn(listener: TcpListener) -> (FrameSender, Arc<FrameStats>, tokio::task::JoinHandle<()>) {
+pub fn spawn(
+    listener: FrameListener,
+) -> (FrameSender, Arc<FrameStats>, tokio::task::JoinHandle<()>) {
     let (tx, rx) = mpsc::channel(QUEUE_FRAMES);
     let stats = Arc::new(FrameStats::default());
     let task = tokio::spawn(serve(listener, rx, Arc::clone(&stats)));
@@ -69,18 +97,16 @@ pub fn spawn(listener: TcpListener) -> (FrameSender, Arc<FrameStats>, tokio::tas
 }
 
 async fn serve(
-    listener: TcpListener,
+    listener: FrameListener,
     mut rx: mpsc::Receiver<(u32, Frame)>,
     stats: Arc<FrameStats>,
 ) {
-    let mut client: Option<TcpStream> = None;
+    let mut client: Option<Client> = None;
     let mut buf = Vec::new();
     loop {
         tokio::select! {
             accepted = listener.accept() => {
-                if let Ok((stream, _)) = accepted {
-                    // Frames are large and latency matters more than packing.
-                    let _ = stream.set_nodelay(true);
+                if let Ok(stream) = accepted {
                     client = Some(stream);
                     stats.clients.fetch_add(1, Ordering::Relaxed);
                 }

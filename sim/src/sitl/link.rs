@@ -11,18 +11,19 @@
 //! instead, so that the link, not the queue, sets the pace and no message is lost.
 
 use std::io::Write;
-use std::path::PathBuf;
+use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::sync::atomic::Ordering;
 use std::time::Duration;
 
+use ianav::io::frame_stream::StreamAddress;
 use mavlink::dialects::ardupilotmega as apm;
 use mavlink::error::MessageReadError;
 use mavlink::{AsyncMavConnection, MavHeader};
 use tokio::sync::mpsc;
 use tokio::time::Instant;
 
-use super::frames;
+use super::frames::{self, FrameListener};
 use super::vehicle::{EstimateRow, TimeBasis, Vehicle, VehicleConfig};
 use crate::flight::{FlightError, FlightSetup};
 
@@ -34,8 +35,9 @@ pub const SEND_QUEUE: usize = 4096;
 /// Where the frame stream listens.
 #[derive(Debug)]
 pub enum FramesListen {
-    /// `ip:port` to bind.
-    Addr(String),
+    /// `host:port` or `unix:PATH` to bind (a Unix socket file left by an earlier run is
+    /// replaced; the run removes its own when it ends).
+    Addr(StreamAddress),
     /// An already bound listener (tests bind port 0 and read the port first).
     Listener(std::net::TcpListener),
 }
@@ -120,6 +122,26 @@ pub struct SitlSummary {
     pub hor_err_rms_after_loss_m: Option<f64>,
     /// Horizontal error of the last companion estimate, m.
     pub last_hor_err_m: Option<f64>,
+}
+
+/// Bind a Unix socket at `path`, replacing a socket file an earlier run left there (but no
+/// other kind of file).
+fn bind_unix(path: &Path) -> Result<tokio::net::UnixListener, SitlError> {
+    use std::os::unix::fs::FileTypeExt;
+    let what = || format!("frame stream listener unix:{}", path.display());
+    if let Ok(meta) = std::fs::symlink_metadata(path) {
+        if !meta.file_type().is_socket() {
+            return Err(SitlError::Io {
+                what: what(),
+                source: std::io::Error::new(
+                    std::io::ErrorKind::AlreadyExists,
+                    "a file that is not a socket is in the way",
+                ),
+            });
+        }
+        std::fs::remove_file(path).map_err(io_err(what()))?;
+    }
+    tokio::net::UnixListener::bind(path).map_err(io_err(what()))
 }
 
 fn io_err(what: impl Into<String>) -> impl FnOnce(std::io::Error) -> SitlError {
@@ -221,17 +243,28 @@ pub async fn run(
         })
     };
 
+    let mut frames_socket_file = None;
     let frame_server = match options.frames {
         None => None,
         Some(listen) => {
             let listener = match listen {
-                FramesListen::Addr(addr) => tokio::net::TcpListener::bind(&addr)
-                    .await
-                    .map_err(io_err(format!("frame stream listener {addr}")))?,
+                FramesListen::Addr(StreamAddress::Tcp(addr)) => FrameListener::Tcp(
+                    tokio::net::TcpListener::bind(&addr)
+                        .await
+                        .map_err(io_err(format!("frame stream listener {addr}")))?,
+                ),
+                FramesListen::Addr(StreamAddress::Unix(path)) => {
+                    let listener = bind_unix(&path)?;
+                    frames_socket_file = Some(path);
+                    FrameListener::Unix(listener)
+                }
                 FramesListen::Listener(l) => {
                     l.set_nonblocking(true)
                         .map_err(io_err("frame stream listener"))?;
-                    tokio::net::TcpListener::from_std(l).map_err(io_err("frame stream listener"))?
+                    FrameListener::Tcp(
+                        tokio::net::TcpListener::from_std(l)
+                            .map_err(io_err("frame stream listener"))?,
+                    )
                 }
             };
             Some(frames::spawn(listener))
@@ -348,6 +381,9 @@ pub async fn run(
     if let Some(task) = frame_task {
         let _ = tokio::time::timeout(Duration::from_secs(3), task).await;
     }
+    if let Some(path) = frames_socket_file {
+        let _ = std::fs::remove_file(path);
+    }
     if let Some(mut w) = csv {
         w.flush().map_err(io_err("writing sitl.csv"))?;
     }
@@ -377,4 +413,31 @@ pub async fn run(
         hor_err_rms_after_loss_m: (err_n > 0).then(|| (err_sq_sum / err_n as f64).sqrt()),
         last_hor_err_m: last_err,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[tokio::test]
+    async fn a_stale_socket_file_is_replaced_and_any_other_file_refused() {
+        let dir = std::env::temp_dir().join(format!("ianav-sitl-unix-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).expect("dir");
+        let path = dir.join("frames.sock");
+        let _ = std::fs::remove_file(&path);
+        // A listener dropped without removing its file leaves a stale socket behind.
+        drop(bind_unix(&path).expect("first bind"));
+        assert!(path.exists());
+        let listener = bind_unix(&path).expect("bind over the stale socket");
+        let client = tokio::net::UnixStream::connect(&path).await;
+        assert!(client.is_ok(), "the new listener serves: {client:?}");
+        drop(listener);
+        // A regular file at the path is never deleted.
+        std::fs::remove_file(&path).expect("remove");
+        std::fs::write(&path, b"not a socket").expect("write");
+        let e = bind_unix(&path).expect_err("a regular file refused");
+        assert!(e.to_string().contains("frames.sock"), "{e}");
+        assert_eq!(std::fs::read(&path).expect("still there"), b"not a socket");
+        let _ = std::fs::remove_dir_all(&dir);
+    }
 }

@@ -6,6 +6,7 @@ use std::path::{Path, PathBuf};
 use serde::Deserialize;
 
 use super::{ConfigError, in_range, invalid};
+use crate::io::frame_stream::StreamAddress;
 use crate::nav::NavCamera;
 use crate::vision::camera::{IntrinsicsKeys, Mounting, MountingConfig};
 
@@ -15,7 +16,8 @@ use crate::vision::camera::{IntrinsicsKeys, Mounting, MountingConfig};
 pub enum CameraSourceKind {
     /// No camera (INS only).
     None,
-    /// The simulator's frame stream (`io::frame_stream`) over TCP at `camera.address`.
+    /// The simulator's frame stream (`io::frame_stream`) at `camera.address` (TCP or a Unix
+    /// socket).
     FrameStream,
     /// PNG / PGM files of `camera.path` in name order.
     Directory,
@@ -32,7 +34,7 @@ pub struct CameraConfig {
     /// Source kind.
     #[serde(default = "default_camera_source")]
     pub source: CameraSourceKind,
-    /// `host:port` of the frame stream.
+    /// The frame stream's `host:port`, or `unix:PATH` for a Unix socket on this machine.
     #[serde(default)]
     pub address: String,
     /// Directory of images.
@@ -198,11 +200,11 @@ pub(super) fn validate(c: &CameraConfig) -> Result<(), ConfigError> {
     match c.source {
         CameraSourceKind::None => {}
         CameraSourceKind::FrameStream => {
-            if c.address.is_empty() || !c.address.contains(':') {
+            if c.address.parse::<StreamAddress>().is_err() {
                 return Err(invalid(
                     "camera.address",
                     format!("{:?}", c.address),
-                    "must be host:port with camera.source = \"frame_stream\"",
+                    "must be host:port or unix:PATH with camera.source = \"frame_stream\"",
                 ));
             }
         }
@@ -303,6 +305,10 @@ mod tests {
         );
         assert_eq!(nav.mounting, MountingConfig::default().nominal());
         assert!(parse(MINIMAL).unwrap().camera.nav_camera().is_none());
+        // The frame stream over a Unix socket; an address that is neither form is refused.
+        cam("source = \"frame_stream\"\naddress = \"unix:/run/ianav/frames.sock\"\n").unwrap();
+        let e = err("source = \"frame_stream\"\naddress = \"5600\"\n");
+        assert!(e.contains("camera.address = \"5600\": must be host:port or unix:PATH"), "{e}");
         // The nominal pinhole: all four keys.
         let nominal =
             cam("width_px = 640\nheight_px = 480\nfocal_length_mm = 8.0\npixel_pitch_um = 5.0\n")
