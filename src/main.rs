@@ -291,29 +291,24 @@ async fn run(cfg: ianav::daemon::config::DaemonConfig) -> anyhow::Result<()> {
         r = &mut daemon => Some(r),
     };
     ianav::daemon::log_counters(&handle.shared.counters());
-    if let Some((p50, p99, max)) = handle.shared.latency_percentiles() {
-        tracing::info!(
-            p50_us = p50,
-            p99_us = p99,
-            max_us = max,
-            "IMU received → solution written latency"
-        );
-    }
-    if let Some((p50, p99, max)) = handle.shared.frame_latency_percentiles() {
-        tracing::info!(
-            p50_us = p50,
-            p99_us = p99,
-            max_us = max,
-            "frame received → visual result applied latency"
-        );
-    }
-    if let Some((p50, p99, max)) = handle.shared.frame_due_latency_percentiles() {
-        tracing::info!(
-            p50_us = p50,
-            p99_us = p99,
-            max_us = max,
-            "frame due (the INS at its time) → visual result applied latency"
-        );
+    let shared = &handle.shared;
+    for (label, percentiles) in [
+        (
+            "IMU received → solution written latency",
+            shared.latency_percentiles(),
+        ),
+        (
+            "frame received → visual result applied latency",
+            shared.frame_latency_percentiles(),
+        ),
+        (
+            "frame due (the INS at its time) → visual result applied latency",
+            shared.frame_due_latency_percentiles(),
+        ),
+    ] {
+        if let Some((p50, p99, max)) = percentiles {
+            tracing::info!(p50_us = p50, p99_us = p99, max_us = max, "{label}");
+        }
     }
     let result = match ended {
         Some(r) => r,

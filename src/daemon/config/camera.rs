@@ -308,7 +308,10 @@ mod tests {
         // The frame stream over a Unix socket; an address that is neither form is refused.
         cam("source = \"frame_stream\"\naddress = \"unix:/run/ianav/frames.sock\"\n").unwrap();
         let e = err("source = \"frame_stream\"\naddress = \"5600\"\n");
-        assert!(e.contains("camera.address = \"5600\": must be host:port or unix:PATH"), "{e}");
+        assert!(
+            e.contains("camera.address = \"5600\": must be host:port or unix:PATH"),
+            "{e}"
+        );
         // The nominal pinhole: all four keys.
         let nominal =
             cam("width_px = 640\nheight_px = 480\nfocal_length_mm = 8.0\npixel_pitch_um = 5.0\n")
