@@ -7,12 +7,19 @@
 //! datagrams, one second of an autopilot's streams: a reader held up for longer (two busy
 //! cores) lost frames. The mavlink crate binds its own socket for `udpin:`/`udpout:`
 //! addresses; we build the socket with `socket2` and hand it over with
-//! `UdpConfig::from_socket`. TCP and serial connections are opened by the crate as before.
+//! `UdpConfig::from_socket`.
+//!
+//! TCP: the crate's own sockets keep Nagle's algorithm on, which holds a small message back
+//! until the peer acknowledges the previous one; against a peer's delayed acknowledgement
+//! (up to 40 ms on Linux) that held the IMU messages 40–45 ms behind the camera frames that
+//! went with them (docs/PERFORMANCE.md "Daemon with vision"). MAVLink is many small
+//! messages whose latency matters, so we open the TCP stream ourselves with `TCP_NODELAY`
+//! and hand it over with `TcpConfig::from_stream`. Serial is opened by the crate.
 
 use std::io;
 use std::net::{SocketAddr, ToSocketAddrs};
 
-use mavlink::{AsyncConnectable, UdpConfig, UdpMode};
+use mavlink::{AsyncConnectable, TcpConfig, UdpConfig, UdpMode};
 use socket2::{Domain, Protocol, SockRef, Socket, Type};
 
 use super::link::Conn;
@@ -30,8 +37,10 @@ pub enum Endpoint {
     UdpIn(SocketAddr),
     /// `udpout:`: send to this peer from an ephemeral port.
     UdpOut(SocketAddr),
-    /// `tcpin:` / `tcpout:` at this address (opened by the mavlink crate).
-    Tcp(SocketAddr),
+    /// `tcpin:`: listen here, serve the first client.
+    TcpIn(SocketAddr),
+    /// `tcpout:`: connect to this server.
+    TcpOut(SocketAddr),
     /// `serial:` (the device is opened, and retried, by the link: a USB autopilot may appear
     /// after the daemon starts).
     Serial,
@@ -58,7 +67,8 @@ pub fn resolve(connection: &str) -> io::Result<Endpoint> {
     match scheme {
         "udpin" => Ok(Endpoint::UdpIn(addr)),
         "udpout" => Ok(Endpoint::UdpOut(addr)),
-        "tcpin" | "tcpout" => Ok(Endpoint::Tcp(addr)),
+        "tcpin" => Ok(Endpoint::TcpIn(addr)),
+        "tcpout" => Ok(Endpoint::TcpOut(addr)),
         _ => Err(bad(
             "unknown scheme: use udpin, udpout, tcpin, tcpout or serial",
         )),
@@ -81,6 +91,23 @@ pub fn udp_socket(bind: SocketAddr, peer: Option<SocketAddr>) -> io::Result<std:
     Ok(sock)
 }
 
+/// The TCP stream of a `tcpin:` (its first client) or `tcpout:` endpoint, with `TCP_NODELAY`
+/// set; any other endpoint is an error.
+pub async fn tcp_stream(endpoint: Endpoint) -> io::Result<std::net::TcpStream> {
+    let stream = match endpoint {
+        Endpoint::TcpOut(server) => tokio::net::TcpStream::connect(server).await?,
+        Endpoint::TcpIn(bind) => tokio::net::TcpListener::bind(bind).await?.accept().await?.0,
+        other => {
+            return Err(io::Error::new(
+                io::ErrorKind::InvalidInput,
+                format!("{other:?} is not a TCP endpoint"),
+            ));
+        }
+    };
+    stream.set_nodelay(true)?;
+    stream.into_std()
+}
+
 fn log_recv_buffer(sock: &std::net::UdpSocket) {
     match SockRef::from(sock).recv_buffer_size() {
         // Linux reports twice the size set (its bookkeeping share): capped means below that.
@@ -94,8 +121,8 @@ fn log_recv_buffer(sock: &std::net::UdpSocket) {
     }
 }
 
-/// Open the connection: UDP on a socket of ours ([`udp_socket`]), TCP and serial by the
-/// mavlink crate.
+/// Open the connection: UDP on a socket of ours ([`udp_socket`]), TCP on a stream of ours
+/// without Nagle's delay ([`tcp_stream`]), serial by the mavlink crate.
 pub async fn open(connection: &str) -> io::Result<Conn> {
     let (sock, mode) = match resolve(connection)? {
         Endpoint::UdpIn(addr) => (udp_socket(addr, None)?, UdpMode::Udpin),
@@ -107,7 +134,13 @@ pub async fn open(connection: &str) -> io::Result<Conn> {
             };
             (udp_socket(any, Some(peer))?, UdpMode::Udpout)
         }
-        Endpoint::Tcp(_) | Endpoint::Serial => {
+        Endpoint::TcpIn(_) | Endpoint::TcpOut(_) => {
+            let stream = tcp_stream(resolve(connection)?).await?;
+            return TcpConfig::from_stream(stream)?
+                .connect_async::<apm::MavMessage>()
+                .await;
+        }
+        Endpoint::Serial => {
             return mavlink::connect_async::<apm::MavMessage>(connection).await;
         }
     };
@@ -129,8 +162,12 @@ mod tests {
         );
         assert!(matches!(
             resolve("tcpout:localhost:5760").unwrap(),
-            Endpoint::Tcp(_)
+            Endpoint::TcpOut(_)
         ));
+        assert_eq!(
+            resolve("tcpin:127.0.0.1:5760").unwrap(),
+            Endpoint::TcpIn("127.0.0.1:5760".parse().unwrap())
+        );
         assert_eq!(
             resolve("serial:/dev/ttyS9:57600").unwrap(),
             Endpoint::Serial
@@ -166,6 +203,71 @@ mod tests {
 
     fn heartbeat() -> apm::MavMessage {
         apm::MavMessage::HEARTBEAT(apm::HEARTBEAT_DATA::default())
+    }
+
+    /// `tcpin` and `tcpout` streams are ours, without Nagle's delay, and carry frames both ways.
+    #[tokio::test]
+    async fn tcp_streams_have_no_nagle_delay_and_carry_frames_both_ways() {
+        let port = std::net::TcpListener::bind("127.0.0.1:0")
+            .unwrap()
+            .local_addr()
+            .unwrap()
+            .port();
+        let wait = std::time::Duration::from_secs(5);
+        let tcpin = format!("tcpin:127.0.0.1:{port}");
+        let server = tokio::spawn(async move { open(&tcpin).await.unwrap() });
+        let client = tokio::time::timeout(wait, async {
+            loop {
+                match open(&format!("tcpout:127.0.0.1:{port}")).await {
+                    Ok(c) => break c,
+                    // The server task may not be listening yet.
+                    Err(_) => tokio::time::sleep(std::time::Duration::from_millis(10)).await,
+                }
+            }
+        })
+        .await
+        .unwrap();
+        let server = tokio::time::timeout(wait, server).await.unwrap().unwrap();
+        let header = MavHeader {
+            system_id: 9,
+            component_id: 2,
+            sequence: 0,
+        };
+        client.send(&header, &heartbeat()).await.unwrap();
+        let got = tokio::time::timeout(wait, server.recv_raw())
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(got.system_id(), 9);
+        server.send(&header, &heartbeat()).await.unwrap();
+        let back = tokio::time::timeout(wait, client.recv_raw())
+            .await
+            .unwrap()
+            .unwrap();
+        assert_eq!(back.component_id(), 2);
+
+        // The streams handed to the crate: both ends with TCP_NODELAY.
+        let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
+        let addr = listener.local_addr().unwrap();
+        drop(listener);
+        let accepting = tokio::spawn(tcp_stream(Endpoint::TcpIn(addr)));
+        let out = tokio::time::timeout(wait, async {
+            loop {
+                match tcp_stream(Endpoint::TcpOut(addr)).await {
+                    Ok(s) => break s,
+                    Err(_) => tokio::time::sleep(std::time::Duration::from_millis(10)).await,
+                }
+            }
+        })
+        .await
+        .unwrap();
+        let inn = tokio::time::timeout(wait, accepting)
+            .await
+            .unwrap()
+            .unwrap()
+            .unwrap();
+        assert!(out.nodelay().unwrap() && inn.nodelay().unwrap());
+        assert!(tcp_stream(Endpoint::Serial).await.is_err());
     }
 
     /// The handed-over sockets behave as the crate's own: `udpin` answers its first sender,

@@ -200,7 +200,8 @@ pub async fn run(
         sequence: 0,
     };
 
-    let mut conn = mavlink::connect_async::<apm::MavMessage>(&options.connect)
+    // The daemon's opening: TCP without Nagle's delay, UDP with a large receive buffer.
+    let mut conn = ianav::daemon::transport::open(&options.connect)
         .await
         .map_err(io_err(format!("MAVLink link {}", options.connect)))?;
     // Older PX4 and pymavlink peers may speak MAVLink 1 until they hear version 2.
