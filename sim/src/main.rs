@@ -111,6 +111,12 @@ enum Command {
         /// camera; repeatable).
         #[arg(long, requires = "terrain", value_parser = parse_outage)]
         frame_outage: Vec<(f64, f64)>,
+        /// Rows and columns between the renderer's exact ray intersections: 2 (the images of
+        /// every committed camera result) or 4 (a quarter of the intersections; images within
+        /// one grey level, docs/PERFORMANCE.md "Camera renderer"). `run` only: Monte Carlo run
+        /// files do not record it.
+        #[arg(long, requires = "terrain", default_value_t = 2, value_parser = parse_spacing)]
+        render_solve_spacing: usize,
     },
     /// Time one flight of physics, environment, sensors and control (no output files).
     Bench {
@@ -309,6 +315,15 @@ fn parse_outage(s: &str) -> Result<(f64, f64), String> {
     Ok((start, start + length))
 }
 
+/// `--render-solve-spacing`: 2 or 4.
+fn parse_spacing(s: &str) -> Result<usize, String> {
+    match s {
+        "2" => Ok(2),
+        "4" => Ok(4),
+        _ => Err(format!("{s:?}: the spacing is 2 or 4")),
+    }
+}
+
 fn main() -> Result<()> {
     let cli = Cli::parse();
     match &cli.command {
@@ -320,6 +335,7 @@ fn main() -> Result<()> {
             every,
             fused,
             frame_outage,
+            render_solve_spacing,
         } => cmd::run::run(
             fly,
             out,
@@ -329,6 +345,7 @@ fn main() -> Result<()> {
                 every: *every,
                 fused: *fused,
                 frame_outages_s: frame_outage,
+                render_solve_spacing_px: *render_solve_spacing,
             },
         ),
         Command::Bench { fly } => cmd::bench::bench(fly),

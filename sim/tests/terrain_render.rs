@@ -482,16 +482,30 @@ fn a_flight_with_a_camera_delivers_10_hz_frames_from_the_true_pose() {
     assert!(off_deg > 1e-4 && off_deg < 0.6, "{off_deg}");
 }
 
-/// The renderer intersects every other row and column exactly and takes midpoints in between
-/// (when no ray can be occluded). Its ground points are off by at most ~0.1 m on steep relief
-/// seen off nadir (a quarter of the 2-px span times the slope change across a lattice edge),
-/// millimetres on gentle ground; the band-limited albedo changes by at most ~128 grey/m (an
-/// edge blurred over one 2 m texel), so a pixel may move by ≤ 13 grey in the worst case, and
-/// almost all by less than one grey level.
+/// The renderer intersects every other row and column exactly (or every 4th, the option) and
+/// takes midpoints in between (when no ray can be occluded). Its ground points are off by at
+/// most ~0.1 m on steep relief seen off nadir (a quarter of the 2-px span times the slope
+/// change across a lattice edge), four times that at spacing 4 (the error grows with the
+/// square of the span), millimetres on gentle ground; the band-limited albedo changes by at
+/// most ~128 grey/m (an edge blurred over one 2 m texel), so a pixel may move by ≤ 13 grey in
+/// the worst case (≤ 52 at spacing 4), and almost all by less than one grey level.
 #[test]
 fn interpolated_geometry_matches_the_exact_render() {
+    for spacing in [2, 4] {
+        interpolated_geometry_at_spacing_matches_the_exact_render(spacing);
+    }
+}
+
+fn interpolated_geometry_at_spacing_matches_the_exact_render(spacing: usize) {
     let cam = Camera::paper();
-    let fast = Renderer::new(cam);
+    let fast = Renderer::with_options(
+        cam,
+        RenderOptions {
+            solve_spacing_px: spacing,
+            ..RenderOptions::default()
+        },
+    )
+    .expect("spacing renderer");
     let exact = Renderer::with_options(
         cam,
         RenderOptions {
@@ -499,7 +513,7 @@ fn interpolated_geometry_matches_the_exact_render() {
             ..RenderOptions::default()
         },
     )
-    .unwrap();
+    .expect("exact renderer");
     // Views in which no ray can be occluded (steeper views of the desert ranges fall back to
     // exact intersections everywhere, which `markers_appear_…` covers).
     for (zone, yaw, pitch, bank) in [
@@ -510,11 +524,13 @@ fn interpolated_geometry_matches_the_exact_render() {
         let terrain = Terrain::new(zone, 0);
         let pos = above(&terrain, 0.0, 0.0, 2_700.0);
         let zeta_ec = pose(&pos, yaw, pitch, bank);
-        let (a, st_fast) = fast.render_with_stats(&terrain, &zeta_ec).unwrap();
-        let (b, st_exact) = exact.render_with_stats(&terrain, &zeta_ec).unwrap();
+        let (a, st_fast) = fast.render_with_stats(&terrain, &zeta_ec).expect("render");
+        let (b, st_exact) = exact.render_with_stats(&terrain, &zeta_ec).expect("render");
+        // A 1/spacing² share of the pixels solved, with up to a few look-ups each.
+        let fewer = (spacing * spacing / 2) as u64;
         assert!(
-            st_fast.height_lookups * 2 < st_exact.height_lookups,
-            "{zone:?}: interpolation not used ({} vs {} look-ups)",
+            st_fast.height_lookups * fewer < st_exact.height_lookups,
+            "{zone:?}, spacing {spacing}: interpolation not used ({} vs {} look-ups)",
             st_fast.height_lookups,
             st_exact.height_lookups
         );
@@ -524,16 +540,23 @@ fn interpolated_geometry_matches_the_exact_render() {
             .zip(&b.pixels)
             .map(|(p, q)| p.abs_diff(*q))
             .collect();
-        let max = diffs.iter().copied().max().unwrap();
+        let max = diffs.iter().copied().max().unwrap_or(0);
         let above_one = diffs.iter().filter(|d| **d > 1).count() as f64 / diffs.len() as f64;
         println!(
-            "{zone:?}: interpolated vs exact geometry: max {max} grey, {:.4} % of pixels > 1 grey; look-ups {:.2} vs {:.2} per px",
+            "{zone:?}, spacing {spacing}: interpolated vs exact geometry: max {max} grey, {:.4} % of pixels > 1 grey; look-ups {:.2} vs {:.2} per px",
             100.0 * above_one,
             st_fast.height_lookups as f64 / diffs.len() as f64,
             st_exact.height_lookups as f64 / diffs.len() as f64
         );
-        assert!(max <= 13, "{zone:?}: max difference {max} grey");
-        assert!(above_one < 1e-3, "{zone:?}: {above_one} of pixels > 1 grey");
+        let max_grey = 13 * (spacing * spacing / 4) as u8;
+        assert!(
+            max <= max_grey,
+            "{zone:?}, spacing {spacing}: max difference {max} grey"
+        );
+        assert!(
+            above_one < 1e-3,
+            "{zone:?}, spacing {spacing}: {above_one} of pixels > 1 grey"
+        );
         // The image's borders (its last column and row are solved apart from the regular
         // lattice) agree as well as the rest: a border left unsolved would carry the ground
         // points of another pixel, tens of metres away.
@@ -567,6 +590,21 @@ fn the_avx2_build_renders_the_portable_bits() {
         exact_geometry: true,
         ..RenderOptions::default()
     };
+    let spaced = RenderOptions {
+        solve_spacing_px: 4,
+        ..RenderOptions::default()
+    };
+    assert!(
+        Renderer::with_options(
+            cam,
+            RenderOptions {
+                solve_spacing_px: 3,
+                ..RenderOptions::default()
+            }
+        )
+        .is_err(),
+        "a spacing other than 2 or 4 is refused"
+    );
     let mut sky_seen = false;
     for (zone, yaw, pitch, bank, opts) in [
         (Zone::Mix, 0.0, 0.0, 0.0, RenderOptions::default()),
@@ -575,6 +613,8 @@ fn the_avx2_build_renders_the_portable_bits() {
         (Zone::Forest, -120.0, -4.0, -8.0, RenderOptions::default()),
         (Zone::Farm, 80.0, 5.0, 75.0, RenderOptions::default()),
         (Zone::Prairie, 200.0, -2.0, 5.0, RenderOptions::default()),
+        (Zone::Mix, 50.0, 1.0, 3.0, spaced),
+        (Zone::Urban, -30.0, 2.0, 70.0, spaced),
     ] {
         let terrain = Terrain::new(zone, 3);
         let pos = above(&terrain, 500.0, -300.0, 2_700.0);

@@ -94,6 +94,8 @@ pub(crate) struct RunOptions<'a> {
     pub fused: bool,
     /// Mission-time windows `[start, end)` without frames, s.
     pub frame_outages_s: &'a [(f64, f64)],
+    /// The renderer's rows and columns between exact intersections (2 or 4).
+    pub render_solve_spacing_px: usize,
 }
 
 pub(crate) fn run(fly: &FlyArgs, out: &std::path::Path, options: &RunOptions) -> Result<()> {
@@ -102,6 +104,7 @@ pub(crate) fn run(fly: &FlyArgs, out: &std::path::Path, options: &RunOptions) ->
     setup.fused = options.fused;
     if let Some(camera) = setup.camera.as_mut() {
         camera.outages_s = options.frame_outages_s.to_vec();
+        camera.options.solve_spacing_px = options.render_solve_spacing_px;
     }
     let mut flight = Flight::new(&setup, fly.seed)?;
     let mut writer = RunWriter::new(out, !no_sensor_log)?;

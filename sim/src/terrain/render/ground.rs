@@ -64,30 +64,32 @@ impl GroundBlock {
         self.y[k] = y;
     }
 
-    /// Row `r` as the midpoints of rows `r − 1` and `r + 1`, in branch-free (vectorised) loops.
+    /// Row `r` as the midpoints of rows `r − d` and `r + d`, in branch-free (vectorised) loops.
     /// A ground depth is finite, so the midpoint depth is NaN exactly where a neighbour is sky;
     /// returns whether the row has such pixels (the caller solves them).
-    pub(super) fn mid_row(&mut self, r: usize) -> bool {
+    pub(super) fn mid_row(&mut self, r: usize, d: usize) -> bool {
         let wu = self.wu;
         for a in [&mut self.t, &mut self.x, &mut self.y] {
             let (head, tail) = a.split_at_mut(r * wu);
-            let above = &head[(r - 1) * wu..];
+            let above = &head[(r - d) * wu..];
             let (row, below) = tail.split_at_mut(wu);
-            for ((m, &p), &q) in row.iter_mut().zip(above).zip(&below[..wu]) {
+            let below = &below[(d - 1) * wu..d * wu];
+            for ((m, &p), &q) in row.iter_mut().zip(above).zip(below) {
                 *m = 0.5 * (p + q);
             }
         }
         any_nan(&self.t[r * wu..(r + 1) * wu])
     }
 
-    /// The odd columns of row `r` as the midpoints of their even neighbours (but the last
-    /// column), branch-free; returns whether any of them has a sky neighbour (NaN depth).
-    pub(super) fn mid_odd_columns(&mut self, r: usize) -> bool {
+    /// Columns `first, first + 2d, …` of row `r` that have both neighbours `d` columns away
+    /// as the midpoints of those neighbours, branch-free; returns whether the row has a NaN
+    /// depth (sky, or a midpoint next to it).
+    pub(super) fn mid_columns(&mut self, r: usize, first: usize, d: usize) -> bool {
         let row = r * self.wu..(r + 1) * self.wu;
         for a in [&mut self.t, &mut self.x, &mut self.y] {
             let a = &mut a[row.clone()];
-            for col in (1..a.len().saturating_sub(1)).step_by(2) {
-                a[col] = 0.5 * (a[col - 1] + a[col + 1]);
+            for col in (first..a.len().saturating_sub(d)).step_by(2 * d) {
+                a[col] = 0.5 * (a[col - d] + a[col + d]);
             }
         }
         any_nan(&self.t[row])
@@ -102,17 +104,21 @@ pub(super) fn any_nan(a: &[f64]) -> bool {
 
 /// The intersection of the rays of a block of rows with the terrain.
 ///
-/// With interpolation, the rays of every other row and column are intersected exactly and
-/// the ground points in between are the midpoints of their neighbours'. On a monotone frame
+/// With interpolation, the rays of every `spacing`-th row and column (2 or 4) are intersected
+/// exactly and the ground points in between are the midpoints of their neighbours' (with 4:
+/// first the midpoints 2 apart, then those between), which is linear interpolation. On a monotone frame
 /// the ground point is a continuous function of the pixel whose derivative only jumps where
 /// the ray's trace crosses an 8 m lattice edge of the bilinear height field, so over a 2-px
 /// span (≈ 5 m at 2,700 m) the midpoint is off by at most a quarter of the span times that
 /// jump: at 25° off nadir and a slope change of 0.2 across an edge, ~0.1 m on the ground
-/// (0.05 px); on gentle terrain millimetres. Without interpolation every pixel is exact.
+/// (0.05 px); on gentle terrain millimetres. The error grows with the square of the spacing:
+/// ~0.4 m (0.16 px) at spacing 4. Without interpolation every pixel is exact.
 pub(super) struct BlockGeometry<'a, F: Fn(f64) -> RowRays> {
     pub(super) rays_of_row: &'a F,
     pub(super) scene: &'a Scene<'a>,
     pub(super) wu: usize,
+    /// Rows and columns between exact solves when interpolating: 2 or 4.
+    pub(super) spacing: usize,
 }
 
 impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
@@ -138,14 +144,15 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
             col = next_col(col, step, wu);
         }
         if step == 2 {
-            self.fill_odd(blk, r, gap, &rays, st);
+            self.fill_columns(blk, r, 1, 1, gap, &rays, st);
         }
     }
 
-    /// [`Self::solve_row`] with step 2 and gap 2 for the rows `rs` (block rows 2 apart, each
-    /// predicted from the one before), in turn. Row 0 of a block is predicted from the left
-    /// only, column after column; the rows below it are predicted from above, so their solved
-    /// columns are independent of one another and go through [`Self::solve_from_above`].
+    /// [`Self::solve_row`] with step and gap `spacing` for the rows `rs` (block rows `spacing`
+    /// apart, each predicted from the one before), in turn, the columns between filled
+    /// ([`Self::fill_between`]). Row 0 of a block is predicted from the left only, column
+    /// after column; the rows below it are predicted from above, so their solved columns are
+    /// independent of one another and go through [`Self::solve_from_above`].
     #[inline(always)]
     pub(super) fn solve_rows(
         &self,
@@ -154,24 +161,34 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         v0: usize,
         st: &mut RenderStats,
     ) {
-        let wu = self.wu;
+        let (wu, gap) = (self.wu, self.spacing);
         for &r in rs {
             let rays = (self.rays_of_row)((v0 + r) as f64);
-            if r >= 2 {
+            if r >= gap {
                 self.solve_from_above(blk, r, &rays, st);
             } else {
                 let mut pred = Pred::default();
                 let mut col = 0;
                 while col < wu {
-                    self.solve_at(blk, r, 2, &rays, col, &mut pred, st);
-                    col = next_col(col, 2, wu);
+                    self.solve_at(blk, r, gap, &rays, col, &mut pred, st);
+                    col = next_col(col, gap, wu);
                 }
             }
-            self.fill_odd(blk, r, 2, &rays, st);
+            self.fill_between(blk, r, &rays, st);
         }
     }
 
-    /// [`Self::solve_at`] (gap 2) of row `r ≥ 2` at every solved column, the same values: the
+    /// The columns of solved row `r` between its solved ones: with spacing 4 those 2 apart
+    /// first, then the odd ones; midpoints, or exact next to sky.
+    #[inline(always)]
+    fn fill_between(&self, blk: &mut GroundBlock, r: usize, rays: &RowRays, st: &mut RenderStats) {
+        if self.spacing == 4 {
+            self.fill_columns(blk, r, 2, 2, 4, rays, st);
+        }
+        self.fill_columns(blk, r, 1, 1, self.spacing, rays, st);
+    }
+
+    /// [`Self::solve_at`] (gap `spacing`) of row `r ≥ spacing` at every solved column, the same values: the
     /// fast paths of the columns with a ground pixel above first, [`FAST_RUN`] at a time in
     /// vectorised phases ([`fast_run`]), then, column after column, [`intersect`] where the fast
     /// path failed and the left-to-right prediction where the pixel above is sky.
@@ -183,7 +200,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         rays: &RowRays,
         st: &mut RenderStats,
     ) {
-        let wu = self.wu;
+        let (wu, gap) = (self.wu, self.spacing);
         let mut pred = Pred::default();
         let mut fast = FastRun::default();
         let mut cols = [0_usize; FAST_RUN];
@@ -195,12 +212,12 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
             while m < FAST_RUN && col < wu {
                 cols[m] = col;
                 m += 1;
-                col = next_col(col, 2, wu);
+                col = next_col(col, gap, wu);
             }
             for j in 0..m {
                 let (p1, p2) = (
-                    self.above(blk, r, 2, cols[j], 1),
-                    self.above(blk, r, 2, cols[j], 2),
+                    self.above(blk, r, gap, cols[j], 1),
+                    self.above(blk, r, gap, cols[j], 2),
                 );
                 a1[j] = p1;
                 // `predict` with a ground pixel above (NaN, and not used, without one).
@@ -269,21 +286,28 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         blk.set(r * self.wu + col, sol);
     }
 
-    /// Odd columns of row `r` (its even ones solved): midpoints, or exact next to sky.
-    pub(super) fn fill_odd(
+    /// Columns `first, first + 2d, …` of row `r` (their neighbours `d` away filled): midpoints,
+    /// or exact next to sky, predicted from the rows `gap` and `2 gap` above.
+    #[expect(
+        clippy::too_many_arguments,
+        reason = "the columns' pattern, the row's predictors and the statistics; inlined"
+    )]
+    pub(super) fn fill_columns(
         &self,
         blk: &mut GroundBlock,
         r: usize,
+        first: usize,
+        d: usize,
         gap: usize,
         rays: &RowRays,
         st: &mut RenderStats,
     ) {
         let wu = self.wu;
         let base = r * wu;
-        if !blk.mid_odd_columns(r) {
+        if !blk.mid_columns(r, first, d) {
             return;
         }
-        for col in (1..wu.saturating_sub(1)).step_by(2) {
+        for col in (first..wu.saturating_sub(d)).step_by(2 * d) {
             if blk.t[base + col].is_nan() {
                 let guess = predict(
                     self.above(blk, r, gap, col, 1),
@@ -312,9 +336,10 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         )
     }
 
-    /// Rows `0, 2, 4, …` of the block (image rows from `v0`) solved by [`Self::solve_rows`],
-    /// odd rows as midpoints of the rows above and below (the block's extra last row is the
-    /// first row of the next block, solved here too; the image's last row, when odd, is
+    /// Rows `0, s, 2s, …` of the block (image rows from `v0`, `s` the spacing) solved by
+    /// [`Self::solve_rows`], the rows between as midpoints of the rows `d` above and below
+    /// (with spacing 4: `d` = 2, then 1; the block's extra last row is the first row of the
+    /// next block, solved here too; rows at the image's bottom without a filled row below are
     /// solved directly).
     #[inline(always)]
     pub(super) fn solve_interpolated(
@@ -325,36 +350,47 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         image_rows: usize,
         st: &mut RenderStats,
     ) {
-        let wu = self.wu;
+        let (wu, s) = (self.wu, self.spacing);
         let below_last = v0 + n_rows < image_rows;
-        let extra = (n_rows.is_multiple_of(2) && below_last).then_some(n_rows);
-        let rs: Vec<usize> = (0..n_rows).step_by(2).chain(extra).collect();
+        let extra = (n_rows.is_multiple_of(s) && below_last).then_some(n_rows);
+        let rs: Vec<usize> = (0..n_rows).step_by(s).chain(extra).collect();
         self.solve_rows(blk, &rs, v0, st);
-        for r in (1..n_rows).step_by(2) {
-            if r + 1 >= n_rows && !below_last {
-                self.solve_row(blk, r, v0 + r, 2, 1, st);
-                continue;
-            }
-            if !blk.mid_row(r) {
-                continue;
-            }
-            let rays = (self.rays_of_row)((v0 + r) as f64);
-            for col in 0..wu {
-                let k = r * wu + col;
-                if blk.t[k].is_nan() {
-                    let guess = predict(blk.t[k - wu], f64::NAN, &Pred::default());
-                    blk.set(k, self.solve_alone(&rays, col, guess, st));
+        // Row `r + d` is filled: inside the block (solved, or filled at the previous level) or
+        // the next block's first row.
+        let filled_below = |r: usize, d: usize| r + d < n_rows || extra == Some(r + d);
+        let levels: &[(usize, usize)] = if s == 4 { &[(2, 2), (1, 1)] } else { &[(1, 1)] };
+        for &(first, d) in levels {
+            for r in (first..n_rows).step_by(2 * d) {
+                if !filled_below(r, d) {
+                    // Predicted from the filled rows `d` and `2d` above (never a row of this
+                    // level still to come: the buffer holds an earlier block's values there).
+                    self.solve_row(blk, r, v0 + r, 2, d, st);
+                    continue;
+                }
+                if !blk.mid_row(r, d) {
+                    continue;
+                }
+                let rays = (self.rays_of_row)((v0 + r) as f64);
+                for col in 0..wu {
+                    let k = r * wu + col;
+                    if blk.t[k].is_nan() {
+                        let guess = predict(blk.t[k - d * wu], f64::NAN, &Pred::default());
+                        blk.set(k, self.solve_alone(&rays, col, guess, st));
+                    }
                 }
             }
         }
     }
 }
 
-/// Next solved column after `col`: every `step`-th, and the last one.
+/// Next solved column after `col`: every `step`-th, then (step 4) every 2nd where the row
+/// ends before the next 4th, and the last one.
 #[inline(always)]
 pub(super) fn next_col(col: usize, step: usize, wu: usize) -> usize {
     if col + step < wu || col + 1 >= wu {
         col + step
+    } else if step > 2 && col + 2 < wu {
+        col + 2
     } else {
         wu - 1
     }

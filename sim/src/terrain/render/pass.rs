@@ -96,6 +96,7 @@ impl<F: Fn(f64) -> RowRays> MainPass<'_, F> {
             rays_of_row: self.row_rays,
             scene: self.scene,
             wu,
+            spacing: self.opts.solve_spacing_px,
         };
         if self.interpolate {
             geom.solve_interpolated(blk, v0, n_rows, self.image_rows, &mut st);
