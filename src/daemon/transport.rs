@@ -228,23 +228,7 @@ mod tests {
         .await
         .unwrap();
         let server = tokio::time::timeout(wait, server).await.unwrap().unwrap();
-        let header = MavHeader {
-            system_id: 9,
-            component_id: 2,
-            sequence: 0,
-        };
-        client.send(&header, &heartbeat()).await.unwrap();
-        let got = tokio::time::timeout(wait, server.recv_raw())
-            .await
-            .unwrap()
-            .unwrap();
-        assert_eq!(got.system_id(), 9);
-        server.send(&header, &heartbeat()).await.unwrap();
-        let back = tokio::time::timeout(wait, client.recv_raw())
-            .await
-            .unwrap()
-            .unwrap();
-        assert_eq!(back.component_id(), 2);
+        heartbeats_go_both_ways(&client, &server).await;
 
         // The streams handed to the crate: both ends with TCP_NODELAY.
         let listener = std::net::TcpListener::bind("127.0.0.1:0").unwrap();
@@ -281,23 +265,28 @@ mod tests {
             .port();
         let server = open(&format!("udpin:127.0.0.1:{port}")).await.unwrap();
         let client = open(&format!("udpout:127.0.0.1:{port}")).await.unwrap();
+        heartbeats_go_both_ways(&client, &server).await;
+    }
+
+    /// A HEARTBEAT from `client` reaches `server`, and one back (5 s each at most).
+    async fn heartbeats_go_both_ways(client: &Conn, server: &Conn) {
         let header = MavHeader {
             system_id: 7,
             component_id: 1,
             sequence: 0,
         };
         let wait = std::time::Duration::from_secs(5);
-        client.send(&header, &heartbeat()).await.unwrap();
+        client.send(&header, &heartbeat()).await.expect("send");
         let got = tokio::time::timeout(wait, server.recv_raw())
             .await
-            .unwrap()
-            .unwrap();
+            .expect("a frame within 5 s")
+            .expect("a frame");
         assert_eq!(got.system_id(), 7);
-        server.send(&header, &heartbeat()).await.unwrap();
+        server.send(&header, &heartbeat()).await.expect("send back");
         let back = tokio::time::timeout(wait, client.recv_raw())
             .await
-            .unwrap()
-            .unwrap();
+            .expect("a frame back within 5 s")
+            .expect("a frame back");
         assert_eq!(back.component_id(), 1);
     }
 }
