@@ -182,10 +182,19 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
     /// first, then the odd ones; midpoints, or exact next to sky.
     #[inline(always)]
     fn fill_between(&self, blk: &mut GroundBlock, r: usize, rays: &RowRays, st: &mut RenderStats) {
-        if self.spacing == 4 {
-            self.fill_columns(blk, r, 2, 2, 4, rays, st);
+        for &(first, d) in self.midpoint_levels() {
+            self.fill_columns(blk, r, first, d, self.spacing, rays, st);
         }
-        self.fill_columns(blk, r, 1, 1, self.spacing, rays, st);
+    }
+
+    /// The midpoint levels between solved rows or columns, coarsest first: `(first, d)`, the
+    /// first interpolated index and the distance to its two neighbours.
+    fn midpoint_levels(&self) -> &'static [(usize, usize)] {
+        if self.spacing == 4 {
+            &[(2, 2), (1, 1)]
+        } else {
+            &[(1, 1)]
+        }
     }
 
     /// [`Self::solve_at`] (gap `spacing`) of row `r ≥ spacing` at every solved column, the same values: the
@@ -358,8 +367,7 @@ impl<F: Fn(f64) -> RowRays> BlockGeometry<'_, F> {
         // Row `r + d` is filled: inside the block (solved, or filled at the previous level) or
         // the next block's first row.
         let filled_below = |r: usize, d: usize| r + d < n_rows || extra == Some(r + d);
-        let levels: &[(usize, usize)] = if s == 4 { &[(2, 2), (1, 1)] } else { &[(1, 1)] };
-        for &(first, d) in levels {
+        for &(first, d) in self.midpoint_levels() {
             for r in (first..n_rows).step_by(2 * d) {
                 if !filled_below(r, d) {
                     // Predicted from the filled rows `d` and `2d` above (never a row of this
